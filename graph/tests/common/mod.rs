@@ -1,0 +1,234 @@
+//! Small node kinds for exercising the runtime: a counting source, pass-through and faulty
+//! tasks, and a recording sink.
+
+#![allow(dead_code)]
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Duration;
+
+use bevworld_graph::{
+    Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Sink, Source, SyncMode, Task,
+};
+use serde::{Deserialize, Serialize};
+
+/// A payload that counts how many of its kind are alive, to check memory stays bounded.
+pub struct Counted {
+    pub value: u64,
+}
+
+pub static LIVE: AtomicUsize = AtomicUsize::new(0);
+pub static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+impl Counted {
+    pub fn new(value: u64) -> Self {
+        let live = LIVE.fetch_add(1, Ordering::SeqCst) + 1;
+        PEAK.fetch_max(live, Ordering::SeqCst);
+        Self { value }
+    }
+}
+
+impl Drop for Counted {
+    fn drop(&mut self) {
+        LIVE.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// What recording sinks saw, by sink name.
+pub fn recorded(name: &str) -> Vec<u64> {
+    records().lock().unwrap().iter().filter(|(n, _)| n == name).map(|(_, v)| *v).collect()
+}
+
+fn records() -> &'static Mutex<Vec<(String, u64)>> {
+    static RECORDS: OnceLock<Mutex<Vec<(String, u64)>>> = OnceLock::new();
+    RECORDS.get_or_init(|| Mutex::new(Vec::new()))
+}
+
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CountParams {
+    /// Items to produce; absent = forever.
+    pub count: Option<u64>,
+    #[serde(default = "one")]
+    pub step_us: i64,
+    #[serde(default)]
+    pub offset_us: i64,
+}
+
+fn one() -> i64 {
+    1
+}
+
+struct CountSource {
+    params: CountParams,
+    next: u64,
+}
+
+impl Source for CountSource {
+    fn start(&mut self) -> Result<bevworld_graph::SourceInfo, NodeError> {
+        Ok(bevworld_graph::SourceInfo { total: self.params.count })
+    }
+
+    fn next(&mut self, out: &mut Outputs) -> Result<Option<i64>, NodeError> {
+        if self.params.count.is_some_and(|count| self.next >= count) {
+            return Ok(None);
+        }
+        let value = self.next;
+        self.next += 1;
+        let tov = self.params.offset_us + value as i64 * self.params.step_us;
+        out.set_time_of_validity(tov);
+        out.send("out", Counted::new(value))?;
+        Ok(Some(tov))
+    }
+}
+
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultParams {
+    /// Fail on this item value.
+    #[serde(default)]
+    pub fail_at: Option<u64>,
+    /// Panic on this item value.
+    #[serde(default)]
+    pub panic_at: Option<u64>,
+    /// Reject (as a bad item) every item divisible by this.
+    #[serde(default)]
+    pub reject_every: Option<u64>,
+    /// Sleep this long on each item.
+    #[serde(default)]
+    pub sleep_us: u64,
+    /// Sleep this long once, on this item.
+    #[serde(default)]
+    pub stall_at: Option<u64>,
+}
+
+struct FaultyPass {
+    params: FaultParams,
+}
+
+impl Task for FaultyPass {
+    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
+        let item = inputs.shared::<Counted>("in")?;
+        let value = item.value;
+        if self.params.sleep_us > 0 {
+            std::thread::sleep(Duration::from_micros(self.params.sleep_us));
+        }
+        if self.params.stall_at == Some(value) {
+            std::thread::sleep(Duration::from_secs(30));
+        }
+        if self.params.fail_at == Some(value) {
+            return Err(NodeError::fatal(format!("refused item {value}")));
+        }
+        if self.params.panic_at == Some(value) {
+            panic!("boom at item {value}");
+        }
+        if self.params.reject_every.is_some_and(|n| value % n == 0) {
+            return Err(NodeError::item(format!("item {value} is bad")));
+        }
+        out.send_shared("out", item)
+    }
+}
+
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordParams {
+    pub name: String,
+    #[serde(default)]
+    pub sleep_us: u64,
+}
+
+struct RecordSink {
+    params: RecordParams,
+}
+
+impl Sink for RecordSink {
+    fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
+        let value = inputs.get::<Counted>("in")?.value;
+        if self.params.sleep_us > 0 {
+            std::thread::sleep(Duration::from_micros(self.params.sleep_us));
+        }
+        records().lock().unwrap().push((self.params.name.clone(), value));
+        Ok(())
+    }
+}
+
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoParams {}
+
+/// Joins two inputs: emits left.value * 1000 + right.value.
+struct Join;
+
+impl Task for Join {
+    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
+        let left = inputs.get::<Counted>("left")?.value;
+        let right = inputs.get::<Counted>("right")?.value;
+        out.send("out", Counted::new(left * 1000 + right))
+    }
+}
+
+/// Takes a text; used only for type-mismatch validation tests.
+struct TextSink;
+
+impl Sink for TextSink {
+    fn consume(&mut self, _inputs: &Inputs) -> Result<(), NodeError> {
+        Ok(())
+    }
+}
+
+#[derive(Deserialize, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Flavour {
+    #[default]
+    Plain,
+    Fancy,
+}
+
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TextParams {
+    #[serde(default)]
+    pub flavour: Flavour,
+    #[serde(default = "one_f")]
+    pub scale: f64,
+}
+
+fn one_f() -> f64 {
+    1.0
+}
+
+pub fn registry() -> Registry {
+    let mut registry = Registry::new();
+    registry.register(
+        KindSpec::source("count", "counts up").output(PortSpec::new::<Counted>("out")),
+        |params: CountParams| Ok(Node::Source(Box::new(CountSource { params, next: 0 }))),
+    );
+    registry.register(
+        KindSpec::task("pass", "passes items on, with optional faults")
+            .input(PortSpec::new::<Counted>("in"))
+            .output(PortSpec::new::<Counted>("out")),
+        |params: FaultParams| Ok(Node::Task(Box::new(FaultyPass { params }))),
+    );
+    registry.register(
+        KindSpec::sink("record", "records values").input(PortSpec::new::<Counted>("in")),
+        |params: RecordParams| Ok(Node::Sink(Box::new(RecordSink { params }))),
+    );
+    registry.register(
+        KindSpec::task("join", "pairs two streams")
+            .input(PortSpec::new::<Counted>("left"))
+            .input(PortSpec::new::<Counted>("right"))
+            .output(PortSpec::new::<Counted>("out"))
+            .sync(SyncMode::Aligned),
+        |_: NoParams| Ok(Node::Task(Box::new(Join))),
+    );
+    registry.register(
+        KindSpec::sink("text_sink", "takes text").input(PortSpec::new::<String>("text")),
+        |params: TextParams| {
+            if params.scale <= 0.0 {
+                return Err(ParamError::field("scale", format!("must be > 0, got {}", params.scale)).with_accepted("a number > 0"));
+            }
+            Ok(Node::Sink(Box::new(TextSink)))
+        },
+    );
+    registry
+}
