@@ -75,6 +75,20 @@ fn temporary_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// Runs a blocking I/O job (reading a frame's files) on the I/O pool.
+pub fn spawn_io<T, F>(job: F) -> std::io::Result<JoinHandle<T>>
+where
+    T: Send + 'static,
+    F: FnOnce() -> T + Send + 'static,
+{
+    Ok(runtime()?.spawn_blocking(job))
+}
+
+/// Waits for a job started with `spawn_io`.
+pub fn wait<T>(handle: JoinHandle<T>) -> std::io::Result<T> {
+    runtime()?.block_on(handle).map_err(|join| std::io::Error::other(format!("I/O task failed: {join}")))
+}
+
 /// Reads a whole file on the I/O pool, for prefetching the next item while this one computes.
 pub fn read_ahead(path: PathBuf) -> std::io::Result<JoinHandle<std::io::Result<Vec<u8>>>> {
     let runtime = runtime()?;

@@ -1,0 +1,6 @@
+//! The nuScenes dataset layout: `v1.0-*/` tables, `samples/` and `sweeps/`.
+
+pub mod reader;
+pub mod tables;
+
+pub use reader::{NuScenes, NuScenesOptions};

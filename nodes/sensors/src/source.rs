@@ -1,0 +1,158 @@
+//! The `dataset_source` node: replays a dataset (nuScenes, KITTI odometry or our synthetic
+//! world) as `SensorFrame`s. While one frame is decoded, the next frame's files are already
+//! being read on the I/O pool.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use bevworld_graph::io::{spawn_io, wait};
+use bevworld_graph::{KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Source, SourceInfo};
+use bevworld_types::{ImageSet, PointCloud, SensorFrame};
+use serde::{Deserialize, Serialize};
+use tokio::task::JoinHandle;
+
+use crate::dataset::{Dataset, DatasetFormat, DatasetOptions, FetchedFrame};
+use crate::lidar_file::NonFinitePolicy;
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetSourceParams {
+    /// Dataset root folder.
+    pub data: PathBuf,
+    /// `auto` recognises the layout from the folder.
+    #[serde(default)]
+    pub format: DatasetFormat,
+    /// nuScenes table folder (`v1.0-mini`, `v1.0-synth`); found automatically when unique.
+    #[serde(default)]
+    pub version: Option<String>,
+    /// Scene names to replay; empty = all.
+    #[serde(default)]
+    pub scenes: Vec<String>,
+    /// Every LiDAR sweep instead of keyframes only (nuScenes layout).
+    #[serde(default)]
+    pub sweeps: bool,
+    /// `drop` (count) or `error` on NaN/Inf points.
+    #[serde(default)]
+    pub non_finite: NonFinitePolicy,
+    /// Do not decode camera images.
+    #[serde(default)]
+    pub skip_images: bool,
+    /// First frame to emit.
+    #[serde(default)]
+    pub start: usize,
+    /// Stop after this many frames.
+    #[serde(default)]
+    pub max_frames: Option<usize>,
+    /// Shard `i/n`: only scenes whose position in the dataset is i mod n.
+    #[serde(default)]
+    pub shard: Option<String>,
+}
+
+pub struct DatasetSource {
+    params: DatasetSourceParams,
+    dataset: Option<Arc<Dataset>>,
+    indices: Vec<usize>,
+    cursor: usize,
+    prefetch: Option<(usize, JoinHandle<crate::error::Result<FetchedFrame>>)>,
+}
+
+impl DatasetSource {
+    pub fn new(params: DatasetSourceParams) -> Result<Self, ParamError> {
+        if let Some(shard) = &params.shard {
+            parse_shard(shard).map_err(|message| ParamError::field("shard", message).with_accepted("I/N with 0 <= I < N"))?;
+        }
+        if params.data.as_os_str().is_empty() {
+            return Err(ParamError::field("data", "is empty").with_accepted("a dataset folder"));
+        }
+        Ok(Self { params, dataset: None, indices: Vec::new(), cursor: 0, prefetch: None })
+    }
+
+    fn start_prefetch(&mut self) {
+        let (Some(dataset), Some(&index)) = (&self.dataset, self.indices.get(self.cursor)) else { return };
+        let dataset = Arc::clone(dataset);
+        if let Ok(handle) = spawn_io(move || dataset.fetch(index)) {
+            self.prefetch = Some((index, handle));
+        }
+    }
+}
+
+/// Parses `i/n`.
+pub fn parse_shard(text: &str) -> Result<(usize, usize), String> {
+    let (i, n) = text.split_once('/').ok_or_else(|| format!("'{text}' is not I/N"))?;
+    let i: usize = i.trim().parse().map_err(|_| format!("'{i}' is not a shard index"))?;
+    let n: usize = n.trim().parse().map_err(|_| format!("'{n}' is not a shard count"))?;
+    if n == 0 || i >= n {
+        return Err(format!("shard {i}/{n} needs 0 <= I < N"));
+    }
+    Ok((i, n))
+}
+
+impl Source for DatasetSource {
+    fn start(&mut self) -> Result<SourceInfo, NodeError> {
+        let options = DatasetOptions {
+            format: self.params.format,
+            version: self.params.version.clone(),
+            scenes: self.params.scenes.clone(),
+            sweeps: self.params.sweeps,
+            non_finite: self.params.non_finite,
+            skip_images: self.params.skip_images,
+        };
+        let dataset = Dataset::open(&self.params.data, &options).map_err(|e| NodeError::fatal_from(&e))?;
+        let shard = self.params.shard.as_deref().map(parse_shard).transpose().map_err(NodeError::fatal)?;
+        let scene_names = dataset.scene_names();
+        let mut scene_order: Vec<&str> = Vec::new();
+        for name in &scene_names {
+            if !scene_order.contains(name) {
+                scene_order.push(name);
+            }
+        }
+        let mut indices: Vec<usize> = (0..dataset.len())
+            .filter(|&i| match shard {
+                Some((k, n)) => scene_order.iter().position(|s| *s == scene_names[i]).is_some_and(|p| p % n == k),
+                None => true,
+            })
+            .skip(self.params.start)
+            .collect();
+        if let Some(max) = self.params.max_frames {
+            indices.truncate(max);
+        }
+        let total = indices.len() as u64;
+        self.indices = indices;
+        self.dataset = Some(Arc::new(dataset));
+        self.start_prefetch();
+        Ok(SourceInfo { total: Some(total) })
+    }
+
+    fn next(&mut self, out: &mut Outputs) -> Result<Option<i64>, NodeError> {
+        let Some(dataset) = self.dataset.clone() else { return Ok(None) };
+        let Some(&index) = self.indices.get(self.cursor) else { return Ok(None) };
+        self.cursor += 1;
+        let fetched = match self.prefetch.take() {
+            Some((prefetched, handle)) if prefetched == index => wait(handle).map_err(|e| NodeError::fatal_from(&e))?,
+            _ => dataset.fetch(index),
+        };
+        // Read the next frame's files while this one decodes.
+        self.start_prefetch();
+        let frame: SensorFrame = dataset.decode(fetched.map_err(|e| NodeError::item_from(&e))?).map_err(|e| NodeError::item_from(&e))?;
+        let time_of_validity = frame.time_of_validity_us;
+        out.set_time_of_validity(time_of_validity);
+        if out.is_connected("images") {
+            out.send("images", frame.image_set())?;
+        }
+        if out.is_connected("lidar") {
+            out.send_shared::<PointCloud>("lidar", Arc::clone(&frame.lidar))?;
+        }
+        out.send("frame", frame)?;
+        Ok(Some(time_of_validity))
+    }
+}
+
+pub fn register(registry: &mut Registry) {
+    registry.register(
+        KindSpec::source("dataset_source", "replays a nuScenes-layout, synthetic or KITTI odometry dataset as sensor frames")
+            .output(PortSpec::new::<SensorFrame>("frame"))
+            .output(PortSpec::new::<ImageSet>("images"))
+            .output(PortSpec::new::<PointCloud>("lidar")),
+        |params: DatasetSourceParams| Ok(Node::Source(Box::new(DatasetSource::new(params)?))),
+    );
+}

@@ -1,0 +1,12 @@
+//! Sinks: files for people and programs.
+
+pub mod ply;
+pub mod ply_sink;
+pub mod png_sink;
+pub mod writes;
+
+/// Registers this family's node kinds.
+pub fn register(registry: &mut bevworld_graph::Registry) {
+    png_sink::register(registry);
+    ply_sink::register(registry);
+}

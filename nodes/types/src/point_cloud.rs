@@ -1,0 +1,54 @@
+//! LiDAR sweeps.
+
+use serde::{Deserialize, Serialize};
+
+use crate::pose::Pose;
+
+/// One return, in the sensor frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[repr(C)]
+pub struct LidarPoint {
+    pub x: f32,
+    pub y: f32,
+    pub z: f32,
+    pub intensity: f32,
+    /// Laser (beam) index; 0 where the format has none.
+    pub ring: u16,
+}
+
+/// A sweep with its calibration and timing.
+#[derive(Clone, Debug, Default)]
+pub struct PointCloud {
+    /// Points in the LiDAR frame.
+    pub points: Vec<LidarPoint>,
+    pub ego_from_lidar: Pose,
+    pub timestamp_us: i64,
+    /// The ego pose at the LiDAR's timestamp.
+    pub global_from_ego: Pose,
+    /// Points dropped on reading because a coordinate was NaN or infinite.
+    pub dropped_non_finite: usize,
+    /// The file it came from, relative to the dataset root.
+    pub source_file: String,
+}
+
+impl PointCloud {
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Points moved into the ego frame, as f32 [x, y, z].
+    pub fn ego_points(&self) -> Vec<[f32; 3]> {
+        let ego_from_lidar = self.ego_from_lidar;
+        self.points
+            .iter()
+            .map(|p| {
+                let q = ego_from_lidar.transform_point3(glam::DVec3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)));
+                [q.x as f32, q.y as f32, q.z as f32]
+            })
+            .collect()
+    }
+}

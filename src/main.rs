@@ -1,0 +1,162 @@
+//! `bevworld`: run, check and draw dataflow graphs; generate, inspect and evaluate data.
+
+mod registry;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use anyhow::{Context, Result, bail};
+use bevworld_graph::{Override, RunOptions, StopHandle};
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "bevworld", version, about = "BEVWorld: a multimodal world model for autonomous driving, as a dataflow graph of actors")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a graph until its sources end (Ctrl-C drains; a second Ctrl-C aborts).
+    Run {
+        /// Graph file, e.g. configs/graphs/replay.yaml.
+        graph: PathBuf,
+        /// Override a node parameter: node.param=value (repeatable). Also node.pacing.rate_hz,
+        /// node.pacing.speed and node.on_error.
+        #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+        set: Vec<String>,
+        /// Write the run's metrics as JSON.
+        #[arg(long, value_name = "FILE")]
+        metrics: Option<PathBuf>,
+        /// Hide the progress bar.
+        #[arg(long)]
+        no_progress: bool,
+    },
+    /// Validate a graph and print it resolved (parameters with defaults, edges with policies).
+    Check {
+        graph: PathBuf,
+        #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+        set: Vec<String>,
+    },
+    /// Print a graph in another form.
+    Graph {
+        graph: PathBuf,
+        /// Graphviz DOT (render with `dot -Tsvg`).
+        #[arg(long)]
+        dot: bool,
+        #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+        set: Vec<String>,
+    },
+    /// List the node kinds with their ports.
+    Kinds,
+    /// Show the Burn device that BURN_DEVICE selects and measure its matmul rate.
+    Device {
+        /// Matrix size for the measurement.
+        #[arg(long, default_value_t = 512)]
+        size: usize,
+    },
+}
+
+fn main() -> ExitCode {
+    init_tracing();
+    let cli = Cli::parse();
+    match dispatch(cli.command) {
+        Ok(code) => code,
+        Err(error) => {
+            eprintln!("error: {error:#}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+}
+
+fn dispatch(command: Command) -> Result<ExitCode> {
+    match command {
+        Command::Run { graph, set, metrics, no_progress } => run(&graph, &set, metrics.as_deref(), !no_progress),
+        Command::Check { graph, set } => {
+            let Some(resolved) = load(&graph, &set)? else { return Ok(ExitCode::from(2)) };
+            print!("{}", resolved.describe());
+            println!("ok");
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Graph { graph, dot, set } => {
+            let Some(resolved) = load(&graph, &set)? else { return Ok(ExitCode::from(2)) };
+            if dot {
+                print!("{}", bevworld_graph::dot::to_dot(&resolved));
+            } else {
+                print!("{}", resolved.describe());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Kinds => {
+            for kind in registry::registry().kinds() {
+                println!("{} [{}]: {}", kind.name, kind.role.as_str(), kind.summary);
+                for port in &kind.inputs {
+                    println!("    in  {}: {}{}", port.name, port.ty.name(), if port.required { "" } else { " (optional)" });
+                }
+                for port in &kind.outputs {
+                    println!("    out {}: {}", port.name, port.ty.name());
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Device { size } => {
+            let (kind, device) = bevworld_device::from_env()?;
+            println!("backend: {} ({device:?})", kind.name());
+            let rate = bevworld_device::matmul_gflops(&device, size, 5)?;
+            println!("matmul {size}x{size}: {rate:.1} GFLOP/s");
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+/// Validates a graph; prints every problem and returns None when there are any.
+fn load(path: &Path, set: &[String]) -> Result<Option<bevworld_graph::ResolvedGraph>> {
+    let overrides = set
+        .iter()
+        .map(|text| Override::parse(text).map_err(anyhow::Error::msg))
+        .collect::<Result<Vec<_>>>()
+        .context("bad --set")?;
+    match bevworld_graph::load(path, &registry::registry(), &overrides) {
+        Ok(graph) => Ok(Some(graph)),
+        Err(diagnostics) => {
+            eprintln!("{diagnostics}");
+            Ok(None)
+        }
+    }
+}
+
+fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> Result<ExitCode> {
+    let Some(graph) = load(path, set)? else { return Ok(ExitCode::from(2)) };
+    let stop = StopHandle::new();
+    let handler_stop = stop.clone();
+    static PRESSES: AtomicUsize = AtomicUsize::new(0);
+    ctrlc::set_handler(move || {
+        if PRESSES.fetch_add(1, Ordering::SeqCst) == 0 {
+            eprintln!("\ninterrupt: draining (press Ctrl-C again to abort)");
+            handler_stop.drain();
+        } else {
+            handler_stop.abort();
+        }
+    })
+    .context("installing the Ctrl-C handler")?;
+
+    let outcome = bevworld_graph::run(graph, RunOptions { stop, progress });
+    print!("{}", outcome.report.table());
+    if let Some(file) = metrics {
+        if let Some(parent) = file.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+        }
+        std::fs::write(file, outcome.report.to_json()).with_context(|| format!("writing metrics to {}", file.display()))?;
+    }
+    if let Some(error) = outcome.error {
+        bail!(error);
+    }
+    Ok(ExitCode::SUCCESS)
+}
