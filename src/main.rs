@@ -1,5 +1,6 @@
 //! `bevworld`: run, check and draw dataflow graphs; generate, inspect and evaluate data.
 
+mod commands;
 mod registry;
 
 use std::path::{Path, PathBuf};
@@ -51,6 +52,11 @@ enum Command {
     },
     /// List the node kinds with their ports.
     Kinds,
+    /// Generate the synthetic driving world in the nuScenes layout (version v1.0-synth).
+    Synth(commands::synth::SynthArgs),
+    /// Draw the LiDAR into each camera image, as the nuScenes devkit projects it, to check a
+    /// dataset's calibration: writes OUT/<CHANNEL>.png and OUT/<CHANNEL>.csv (u,v,depth).
+    Inspect(commands::inspect::InspectArgs),
     /// Show the Burn device that BURN_DEVICE selects and measure its matmul rate.
     Device {
         /// Matrix size for the measurement.
@@ -106,6 +112,8 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Command::Synth(args) => commands::synth::run(&args),
+        Command::Inspect(args) => commands::inspect::run(&args),
         Command::Device { size } => {
             let (kind, device) = bevworld_device::from_env()?;
             println!("backend: {} ({device:?})", kind.name());

@@ -8,15 +8,20 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Result, SensorError};
 use crate::lidar_file::NonFinitePolicy;
 use crate::nuscenes::reader::FrameFiles;
+use crate::kitti::Kitti;
 use crate::nuscenes::{NuScenes, NuScenesOptions};
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DatasetFormat {
-    /// nuScenes layout (a folder with `v1.0-*/sample_data.json`).
+    /// Recognised from the folder: `v1.0-*/sample_data.json` is nuScenes (synthetic included),
+    /// `velodyne/` with `poses.txt` is KITTI odometry.
     #[default]
     Auto,
     Nuscenes,
+    /// Our synthetic world: the nuScenes layout with version `v1.0-synth`.
+    Synth,
+    Kitti,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -31,11 +36,13 @@ pub struct DatasetOptions {
 
 pub enum Dataset {
     NuScenes(NuScenes),
+    Kitti(Kitti),
 }
 
 /// A frame's files, read and not yet decoded.
 pub enum FetchedFrame {
     NuScenes(FrameFiles),
+    Kitti((usize, Vec<u8>)),
 }
 
 impl Dataset {
@@ -43,9 +50,9 @@ impl Dataset {
         if !root.exists() {
             return Err(SensorError::file(root, "dataset folder does not exist"));
         }
-        let nuscenes = || {
+        let nuscenes = |version: Option<String>| {
             NuScenes::open(root, NuScenesOptions {
-                version: options.version.clone(),
+                version,
                 scenes: options.scenes.clone(),
                 sweeps: options.sweeps,
                 non_finite: options.non_finite,
@@ -54,13 +61,18 @@ impl Dataset {
             .map(Dataset::NuScenes)
         };
         match options.format {
-            DatasetFormat::Nuscenes | DatasetFormat::Auto => nuscenes(),
+            DatasetFormat::Nuscenes => nuscenes(options.version.clone()),
+            DatasetFormat::Synth => nuscenes(Some(options.version.clone().unwrap_or_else(|| crate::synth::VERSION.to_string()))),
+            DatasetFormat::Kitti => Kitti::open(root, options.non_finite).map(Dataset::Kitti),
+            DatasetFormat::Auto if Kitti::recognise(root) => Kitti::open(root, options.non_finite).map(Dataset::Kitti),
+            DatasetFormat::Auto => nuscenes(options.version.clone()),
         }
     }
 
     pub fn len(&self) -> usize {
         match self {
             Dataset::NuScenes(d) => d.len(),
+            Dataset::Kitti(d) => d.len(),
         }
     }
 
@@ -68,21 +80,33 @@ impl Dataset {
         self.len() == 0
     }
 
+    /// The frame of a nuScenes sample token.
+    pub fn index_of_sample(&self, token: &str) -> Option<usize> {
+        match self {
+            Dataset::NuScenes(d) => d.index_of_sample(token),
+            Dataset::Kitti(d) => (0..d.len()).find(|i| format!("{}/{:06}", d.sequence(), i) == token),
+        }
+    }
+
     pub fn scene_names(&self) -> Vec<&str> {
         match self {
             Dataset::NuScenes(d) => d.scene_names(),
+            Dataset::Kitti(d) => vec![d.sequence(); d.len()],
         }
     }
 
     pub fn fetch(&self, index: usize) -> Result<FetchedFrame> {
         match self {
             Dataset::NuScenes(d) => d.fetch(index).map(FetchedFrame::NuScenes),
+            Dataset::Kitti(d) => d.fetch(index).map(FetchedFrame::Kitti),
         }
     }
 
     pub fn decode(&self, fetched: FetchedFrame) -> Result<SensorFrame> {
         match (self, fetched) {
             (Dataset::NuScenes(d), FetchedFrame::NuScenes(files)) => d.decode(files),
+            (Dataset::Kitti(d), FetchedFrame::Kitti(files)) => d.decode(files),
+            _ => Err(SensorError::Other("fetched files belong to another dataset".into())),
         }
     }
 

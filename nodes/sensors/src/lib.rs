@@ -2,9 +2,12 @@
 
 pub mod dataset;
 pub mod error;
+pub mod inspect;
+pub mod kitti;
 pub mod lidar_file;
 pub mod nuscenes;
 pub mod source;
+pub mod synth;
 
 pub use dataset::{Dataset, DatasetFormat, DatasetOptions};
 pub use error::SensorError;

@@ -46,6 +46,47 @@ pub struct DatasetSourceParams {
     /// Shard `i/n`: only scenes whose position in the dataset is i mod n.
     #[serde(default)]
     pub shard: Option<String>,
+    /// When `data` does not exist, generate a synthetic dataset there first.
+    #[serde(default)]
+    pub generate: Option<GenerateParams>,
+}
+
+/// A synthetic dataset to make on the fly (see `bevworld synth`).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct GenerateParams {
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default = "one")]
+    pub scenes: usize,
+    #[serde(default = "four")]
+    pub seconds: f64,
+    /// Camera image size `WxH`.
+    #[serde(default = "default_size")]
+    pub camera_size: String,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn four() -> f64 {
+    4.0
+}
+
+fn default_size() -> String {
+    "400x224".into()
+}
+
+/// Parses `WxH`.
+pub fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("'{text}' is not WxH"))?;
+    let w: u32 = w.trim().parse().map_err(|_| format!("'{w}' is not a width"))?;
+    let h: u32 = h.trim().parse().map_err(|_| format!("'{h}' is not a height"))?;
+    if w < 16 || h < 16 || w > 8192 || h > 8192 {
+        return Err(format!("{w}x{h} is outside 16..8192"));
+    }
+    Ok((w, h))
 }
 
 pub struct DatasetSource {
@@ -63,6 +104,12 @@ impl DatasetSource {
         }
         if params.data.as_os_str().is_empty() {
             return Err(ParamError::field("data", "is empty").with_accepted("a dataset folder"));
+        }
+        if let Some(generate) = &params.generate {
+            parse_size(&generate.camera_size).map_err(|message| ParamError::field("generate", message).with_accepted("camera_size: WxH, e.g. 400x224"))?;
+            if !(generate.seconds > 0.0 && generate.seconds <= 600.0) || generate.scenes == 0 {
+                return Err(ParamError::field("generate", "needs scenes >= 1 and 0 < seconds <= 600"));
+            }
         }
         Ok(Self { params, dataset: None, indices: Vec::new(), cursor: 0, prefetch: None })
     }
@@ -89,6 +136,25 @@ pub fn parse_shard(text: &str) -> Result<(usize, usize), String> {
 
 impl Source for DatasetSource {
     fn start(&mut self) -> Result<SourceInfo, NodeError> {
+        if let (Some(generate), false) = (&self.params.generate, self.params.data.exists()) {
+            let (camera_width, camera_height) = parse_size(&generate.camera_size).map_err(NodeError::fatal)?;
+            let config = crate::synth::SynthConfig {
+                seed: generate.seed,
+                scenes: generate.scenes,
+                seconds: generate.seconds,
+                camera_width,
+                camera_height,
+                ..Default::default()
+            };
+            tracing::info!("generating synthetic dataset in {}", self.params.data.display());
+            // Generate into a sibling folder and rename, so an interrupted run leaves no
+            // half-made dataset behind for the next run to trust.
+            let staging = self.params.data.with_extension("partial");
+            let _ = std::fs::remove_dir_all(&staging);
+            crate::synth::generate(&staging, &config, |_, _| {}).map_err(|e| NodeError::fatal_from(&e))?;
+            std::fs::rename(&staging, &self.params.data)
+                .map_err(|e| NodeError::fatal(format!("{}: cannot move generated dataset into place: {e}", self.params.data.display())))?;
+        }
         let options = DatasetOptions {
             format: self.params.format,
             version: self.params.version.clone(),

@@ -1,0 +1,371 @@
+//! Writes synthetic scenes in the nuScenes layout (`v1.0-synth/*.json`, `samples/`, `sweeps/`)
+//! with the same table fields, so the nuScenes reader loads them like any nuScenes split.
+
+use std::collections::BTreeMap;
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::DQuat;
+use serde::Serialize;
+use serde_json::json;
+
+use bevworld_types::{CameraChannel, Pose};
+
+use super::render::{LidarSpec, render_camera, scan_lidar};
+use super::rig::{CAMERAS, LIDAR_ROTATION, LIDAR_TRANSLATION, ego_from_lidar};
+use super::rng::token;
+use super::scene::{KEYFRAME_EVERY, SceneWorld};
+use crate::error::{Result, SensorError};
+use crate::lidar_file::{LidarLayout, encode_points};
+use crate::nuscenes::tables::{CalibratedSensor, EgoPose, Log, Sample, SampleAnnotation, SampleData, Scene, Sensor};
+
+pub const VERSION: &str = "v1.0-synth";
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageEncoding {
+    /// Lossless (the default): reconstruction metrics measure the model, not the codec.
+    Png,
+    Jpeg { quality: u8 },
+}
+
+#[derive(Clone, Debug)]
+pub struct SynthConfig {
+    /// Scene k uses seed `seed + k`.
+    pub seed: u64,
+    pub scenes: usize,
+    pub seconds: f64,
+    pub camera_width: u32,
+    pub camera_height: u32,
+    pub lidar: LidarSpec,
+    pub agents: usize,
+    pub image_encoding: ImageEncoding,
+    /// Camera far plane, m.
+    pub far: f64,
+}
+
+impl Default for SynthConfig {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            scenes: 1,
+            seconds: 4.0,
+            camera_width: 400,
+            camera_height: 224,
+            lidar: LidarSpec::nuscenes_like(0.4),
+            agents: 14,
+            image_encoding: ImageEncoding::Png,
+            far: 250.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct SynthSummary {
+    pub scenes: usize,
+    pub frames: usize,
+    pub keyframes: usize,
+    pub lidar_points: usize,
+    pub seconds: f64,
+}
+
+impl SynthSummary {
+    pub fn frames_per_second(&self) -> f64 {
+        if self.seconds > 0.0 { self.frames as f64 / self.seconds } else { 0.0 }
+    }
+}
+
+#[derive(Default)]
+struct Tables {
+    scene: Vec<Scene>,
+    sample: Vec<Sample>,
+    sample_data: Vec<SampleData>,
+    calibrated_sensor: Vec<CalibratedSensor>,
+    sensor: Vec<Sensor>,
+    ego_pose: Vec<EgoPose>,
+    log: Vec<Log>,
+    sample_annotation: Vec<SampleAnnotation>,
+    instance: Vec<serde_json::Value>,
+    ego_control: Vec<serde_json::Value>,
+}
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| SensorError::io(parent, e))?;
+    }
+    bevworld_graph::io::write_atomic_now(path, bytes).map_err(|e| SensorError::io(path, e))
+}
+
+fn rotation_wxyz(pose: &Pose) -> [f64; 4] {
+    let q = DQuat::from_mat3(&pose.matrix3);
+    [q.w, q.x, q.y, q.z]
+}
+
+/// Generates the dataset under `out`. `progress(frames_done, frames_total)` is called per frame.
+pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize, usize)) -> Result<SynthSummary> {
+    let started = Instant::now();
+    let mut tables = Tables::default();
+    let channels: Vec<String> = CAMERAS.iter().map(|c| c.channel.name().to_string()).chain(["LIDAR_TOP".to_string()]).collect();
+    for (index, channel) in channels.iter().enumerate() {
+        tables.sensor.push(Sensor {
+            token: token(0, "sensor", index as u64),
+            channel: channel.clone(),
+            modality: if channel == "LIDAR_TOP" { "lidar".into() } else { "camera".into() },
+        });
+    }
+    let ticks_per_scene = ((config.seconds * super::scene::RATE_HZ).round() as usize).max(1);
+    let total = ticks_per_scene * config.scenes;
+    let mut summary = SynthSummary { scenes: config.scenes, ..Default::default() };
+    let mut annotation_chain: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    let category = token(0, "category", 0);
+
+    for scene_index in 0..config.scenes {
+        let seed = config.seed + scene_index as u64;
+        let world = SceneWorld::new(seed, config.seconds, config.agents);
+        let name = format!("synth-{seed:06}");
+        let log_token = token(seed, "log", 0);
+        tables.log.push(Log { token: log_token.clone(), logfile: name.clone(), vehicle: "synth".into(), date_captured: "2026-01-01".into(), location: "synth-city".into() });
+        // One calibration per sensor per scene, as nuScenes has one per log.
+        let calib_tokens: Vec<String> = (0..channels.len()).map(|i| token(seed, "calibrated_sensor", i as u64)).collect();
+        for (i, mount) in CAMERAS.iter().enumerate() {
+            let k = mount.intrinsics(config.camera_width, config.camera_height);
+            tables.calibrated_sensor.push(CalibratedSensor {
+                token: calib_tokens[i].clone(),
+                sensor_token: tables.sensor[i].token.clone(),
+                translation: mount.translation,
+                rotation: mount.rotation,
+                camera_intrinsic: vec![vec![k.fx, 0.0, k.cx], vec![0.0, k.fy, k.cy], vec![0.0, 0.0, 1.0]],
+            });
+        }
+        tables.calibrated_sensor.push(CalibratedSensor {
+            token: calib_tokens[6].clone(),
+            sensor_token: tables.sensor[6].token.clone(),
+            translation: LIDAR_TRANSLATION,
+            rotation: LIDAR_ROTATION,
+            camera_intrinsic: Vec::new(),
+        });
+
+        let keyframe_ticks: Vec<usize> = (0..world.ticks).filter(|k| k % KEYFRAME_EVERY == 0).collect();
+        let sample_tokens: Vec<String> = keyframe_ticks.iter().map(|&k| token(seed, "sample", k as u64)).collect();
+        let scene_token = token(seed, "scene", 0);
+        for (i, &tick) in keyframe_ticks.iter().enumerate() {
+            tables.sample.push(Sample {
+                token: sample_tokens[i].clone(),
+                timestamp: world.tick_time_us(tick),
+                scene_token: scene_token.clone(),
+                prev: if i > 0 { sample_tokens[i - 1].clone() } else { String::new() },
+                next: sample_tokens.get(i + 1).cloned().unwrap_or_default(),
+            });
+        }
+        tables.scene.push(Scene {
+            token: scene_token,
+            log_token,
+            nbr_samples: keyframe_ticks.len(),
+            name: name.clone(),
+            description: format!("synthetic town drive, seed {seed}, turns {:?}", world.script.turns),
+            first_sample_token: sample_tokens.first().cloned().unwrap_or_default(),
+            last_sample_token: sample_tokens.last().cloned().unwrap_or_default(),
+        });
+        for control in &world.controls {
+            tables.ego_control.push(json!({
+                "scene_token": tables.scene.last().map(|s| s.token.clone()).unwrap_or_default(),
+                "timestamp": control.timestamp,
+                "speed": control.speed,
+                "acceleration": control.acceleration,
+                "steering": control.steering,
+                "manoeuvre": control.manoeuvre,
+            }));
+        }
+
+        let mut previous_data: Vec<Option<usize>> = vec![None; channels.len()];
+        for tick in 0..world.ticks {
+            let keyframe = tick % KEYFRAME_EVERY == 0;
+            let nearest_key = ((tick + KEYFRAME_EVERY / 2) / KEYFRAME_EVERY).min(keyframe_ticks.len() - 1);
+            let sample_token = sample_tokens[nearest_key].clone();
+            let folder = if keyframe { "samples" } else { "sweeps" };
+            let lidar_time = world.tick_time_us(tick);
+
+            // Cameras, each at its own trigger time and ego pose.
+            for (i, mount) in CAMERAS.iter().enumerate() {
+                let time = lidar_time + mount.offset_us;
+                let global_from_ego = world.global_from_ego(time);
+                let global_from_camera = global_from_ego * mount.ego_from_camera();
+                let snapshot = world.snapshot(time);
+                let intrinsics = mount.intrinsics(config.camera_width, config.camera_height);
+                let (image, _) = render_camera(&snapshot, &intrinsics, &global_from_camera, config.far);
+                let (bytes, extension) = encode_image(&image, config.image_encoding)?;
+                let file = format!("{folder}/{}/{name}__{}__{time}.{extension}", mount.channel.name(), mount.channel.name());
+                write_file(&out.join(&file), &bytes)?;
+                push_sample_data(&mut tables, &mut previous_data[i], seed, &sample_token, &calib_tokens[i], time, &global_from_ego, keyframe, &file, extension, config.camera_width, config.camera_height);
+            }
+
+            // LiDAR at the tick time.
+            let global_from_ego = world.global_from_ego(lidar_time);
+            let global_from_lidar = global_from_ego * ego_from_lidar();
+            let snapshot = world.snapshot(lidar_time);
+            let noise_seed = seed.wrapping_mul(1_000_003).wrapping_add(tick as u64);
+            let (points, ids) = scan_lidar(&snapshot, &config.lidar, &global_from_lidar, noise_seed);
+            summary.lidar_points += points.len();
+            let file = format!("{folder}/LIDAR_TOP/{name}__LIDAR_TOP__{lidar_time}.pcd.bin");
+            write_file(&out.join(&file), &encode_points(&points, LidarLayout::NuScenes))?;
+            push_sample_data(&mut tables, &mut previous_data[6], seed, &sample_token, &calib_tokens[6], lidar_time, &global_from_ego, keyframe, &file, "pcd", 0, 0);
+
+            if keyframe {
+                summary.keyframes += 1;
+                let ego = world.ego_position(lidar_time);
+                for (instance, body, moving) in world.vehicles_at(lidar_time) {
+                    if (body.center - ego).length() > 60.0 || (body.center - ego).length() < 3.0 {
+                        continue;
+                    }
+                    let instance_token = token(seed, "instance", u64::from(instance));
+                    let index = tables.sample_annotation.len();
+                    let num_lidar_pts = ids.iter().filter(|&&id| id == instance).count() as i64;
+                    tables.sample_annotation.push(SampleAnnotation {
+                        token: token(seed, "sample_annotation", index as u64 * 7919 + u64::from(instance)),
+                        sample_token: sample_tokens[tick / KEYFRAME_EVERY].clone(),
+                        instance_token: instance_token.clone(),
+                        visibility_token: String::new(),
+                        attribute_tokens: vec![if moving { "vehicle.moving".into() } else { "vehicle.parked".into() }],
+                        translation: [body.center.x, body.center.y, body.size.z * 0.5],
+                        size: [body.size.x, body.size.y, body.size.z],
+                        rotation: {
+                            let q = DQuat::from_rotation_z(body.yaw);
+                            [q.w, q.x, q.y, q.z]
+                        },
+                        prev: String::new(),
+                        next: String::new(),
+                        num_lidar_pts,
+                        num_radar_pts: 0,
+                    });
+                    annotation_chain.entry(instance_token).or_default().push(index);
+                }
+            }
+            summary.frames += 1;
+            progress(summary.frames, total);
+        }
+    }
+
+    // Link each instance's annotations and list the instances.
+    for (instance_token, indices) in &annotation_chain {
+        for w in indices.windows(2) {
+            let next = tables.sample_annotation[w[1]].token.clone();
+            let prev = tables.sample_annotation[w[0]].token.clone();
+            tables.sample_annotation[w[0]].next = next;
+            tables.sample_annotation[w[1]].prev = prev;
+        }
+        tables.instance.push(json!({
+            "token": instance_token,
+            "category_token": category,
+            "nbr_annotations": indices.len(),
+            "first_annotation_token": tables.sample_annotation[indices[0]].token,
+            "last_annotation_token": tables.sample_annotation[*indices.last().unwrap_or(&indices[0])].token,
+        }));
+    }
+
+    let dir = out.join(VERSION);
+    let write_table = |name: &str, rows: &dyn erased::Rows| -> Result<()> { write_file(&dir.join(format!("{name}.json")), &rows.to_json()) };
+    write_table("scene", &tables.scene)?;
+    write_table("sample", &tables.sample)?;
+    write_table("sample_data", &tables.sample_data)?;
+    write_table("calibrated_sensor", &tables.calibrated_sensor)?;
+    write_table("sensor", &tables.sensor)?;
+    write_table("ego_pose", &tables.ego_pose)?;
+    write_table("log", &tables.log)?;
+    write_table("sample_annotation", &tables.sample_annotation)?;
+    write_table("instance", &tables.instance)?;
+    write_table("ego_control", &tables.ego_control)?;
+    write_table("category", &vec![json!({"token": category, "name": "vehicle.car", "description": "Synthetic passenger car."})])?;
+    let empty: Vec<serde_json::Value> = Vec::new();
+    for name in ["attribute", "visibility", "map"] {
+        write_table(name, &empty)?;
+    }
+    summary.seconds = started.elapsed().as_secs_f64();
+    Ok(summary)
+}
+
+mod erased {
+    use serde::Serialize;
+
+    /// A table of any row type, as pretty JSON (stable key order, so output is byte-identical).
+    pub trait Rows {
+        fn to_json(&self) -> Vec<u8>;
+    }
+
+    impl<T: Serialize> Rows for Vec<T> {
+        fn to_json(&self) -> Vec<u8> {
+            serde_json::to_vec_pretty(self).unwrap_or_default()
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn push_sample_data(
+    tables: &mut Tables,
+    previous: &mut Option<usize>,
+    seed: u64,
+    sample_token: &str,
+    calib_token: &str,
+    timestamp: i64,
+    global_from_ego: &Pose,
+    keyframe: bool,
+    file: &str,
+    fileformat: &str,
+    width: u32,
+    height: u32,
+) {
+    let index = tables.sample_data.len();
+    let data_token = token(seed, "sample_data", index as u64);
+    tables.ego_pose.push(EgoPose {
+        token: data_token.clone(),
+        timestamp,
+        rotation: rotation_wxyz(global_from_ego),
+        translation: global_from_ego.translation.to_array(),
+    });
+    let prev = previous.map(|p| tables.sample_data[p].token.clone()).unwrap_or_default();
+    if let Some(p) = *previous {
+        tables.sample_data[p].next = data_token.clone();
+    }
+    tables.sample_data.push(SampleData {
+        token: data_token.clone(),
+        sample_token: sample_token.to_string(),
+        ego_pose_token: data_token,
+        calibrated_sensor_token: calib_token.to_string(),
+        timestamp,
+        fileformat: fileformat.to_string(),
+        is_key_frame: keyframe,
+        height,
+        width,
+        filename: file.to_string(),
+        prev,
+        next: String::new(),
+    });
+    *previous = Some(index);
+}
+
+fn encode_image(image: &image::RgbImage, encoding: ImageEncoding) -> Result<(Vec<u8>, &'static str)> {
+    let mut bytes = Vec::new();
+    match encoding {
+        ImageEncoding::Png => {
+            image.write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png).map_err(|e| SensorError::Other(format!("PNG encoding: {e}")))?;
+            Ok((bytes, "png"))
+        }
+        ImageEncoding::Jpeg { quality } => {
+            let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, quality.clamp(1, 100));
+            image.write_with_encoder(encoder).map_err(|e| SensorError::Other(format!("JPEG encoding: {e}")))?;
+            Ok((bytes, "jpg"))
+        }
+    }
+}
+
+/// The camera channel order the writer uses (for tests).
+pub fn camera_channels() -> Vec<CameraChannel> {
+    CAMERAS.iter().map(|c| c.channel).collect()
+}
+
+/// Where a dataset root's table folder is.
+pub fn tables_dir(out: &Path) -> PathBuf {
+    out.join(VERSION)
+}
+
+#[allow(dead_code)]
+fn assert_serialize<T: Serialize>() {}
