@@ -80,7 +80,7 @@ pub fn matmul_gflops(device: &Device, n: usize, reps: usize) -> Result<f64, Devi
         // Reading one value back waits for the product on asynchronous backends.
         t.slice([0..1, 0..1])
             .into_data()
-            .to_vec::<f32>()
+            .try_to_vec::<f32>()
             .map(|_| ())
             .map_err(|error| DeviceError::Failed { backend: "matmul", message: format!("{error:?}") })
     };
@@ -112,7 +112,7 @@ mod tests {
         let device = Device::flex();
         let a = Tensor::<2>::from_floats([[1.0, 2.0], [3.0, 4.0]], &device);
         let b = Tensor::<2>::from_floats([[5.0, 6.0], [7.0, 8.0]], &device);
-        let product = a.matmul(b).into_data().to_vec::<f32>().unwrap();
+        let product = a.matmul(b).into_data().try_to_vec::<f32>().unwrap();
         assert_eq!(product, vec![19.0, 22.0, 43.0, 50.0]);
         assert!(matmul_gflops(&device, 64, 2).unwrap() > 0.0);
     }

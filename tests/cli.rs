@@ -1,0 +1,142 @@
+//! The `bevworld` tool as a user runs it: exit codes, error messages and written files.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn bevworld(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bevworld")).args(args).current_dir(env!("CARGO_MANIFEST_DIR")).output().unwrap()
+}
+
+fn text(output: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr))
+}
+
+fn nuscenes() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/nuscenes-sample")
+}
+
+#[test]
+fn replay_writes_pngs_and_a_ply_that_parse_back() {
+    let out = tempfile::tempdir().unwrap();
+    let o = out.path().display().to_string();
+    let metrics = out.path().join("metrics.json");
+    let output = bevworld(&[
+        "run",
+        "configs/graphs/replay.yaml",
+        "--set",
+        &format!("source.data={}", nuscenes().display()),
+        "--set",
+        &format!("images.out={o}"),
+        "--set",
+        &format!("sweeps.out={o}"),
+        "--metrics",
+        metrics.to_str().unwrap(),
+        "--no-progress",
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    for channel in ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT"] {
+        let png = image::open(out.path().join(format!("000000/{channel}.png"))).unwrap();
+        assert_eq!((png.width(), png.height()), (1600, 900), "{channel}");
+        assert!(matches!(png, image::DynamicImage::ImageRgb8(_)));
+    }
+    let ply = out.path().join("000000/LIDAR_TOP.ply");
+    let header = std::fs::read(&ply).unwrap();
+    assert!(String::from_utf8_lossy(&header[..200]).contains("format binary_little_endian 1.0"));
+    let points = bevworld_sinks_ply::read(&ply);
+    assert_eq!(points, 34_688);
+    // No temporary files left behind by the atomic writes.
+    let leftovers: Vec<_> = std::fs::read_dir(out.path().join("000000")).unwrap().filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".tmp")).collect();
+    assert!(leftovers.is_empty());
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
+    assert_eq!(report["outcome"], "completed");
+    let source = report["nodes"].as_array().unwrap().iter().find(|n| n["id"] == "source").unwrap();
+    assert_eq!(source["items_out"], 1);
+}
+
+/// Reads a PLY with ply-rs-bw's generic element map, independently of our own codec.
+mod bevworld_sinks_ply {
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::DefaultElement;
+
+    pub fn read(path: &std::path::Path) -> usize {
+        let mut file = std::fs::File::open(path).unwrap();
+        let ply = Parser::<DefaultElement>::new().read_ply(&mut file).unwrap();
+        let vertex = &ply.payload["vertex"];
+        assert!(vertex[0].contains_key("intensity"));
+        vertex.len()
+    }
+}
+
+#[test]
+fn check_reports_problems_with_positions_and_exits_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let graph = dir.path().join("bad.yaml");
+    std::fs::write(&graph, "nodes:\n  - {id: source, kind: dataset_sourc, params: {data: x}}\n  - {id: png, kind: png_sink, params: {out: o, colour: red}}\n").unwrap();
+    let output = bevworld(&["check", graph.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(2));
+    let message = text(&output);
+    assert!(message.contains("bad.yaml:2:") && message.contains("did you mean 'dataset_source'"), "{message}");
+    assert!(message.contains("'colour'") && message.contains("accepted:"), "{message}");
+    assert!(message.contains("required input 'png.images'"), "{message}");
+}
+
+#[test]
+fn check_and_dot_on_the_shipped_graphs() {
+    for graph in std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/graphs")).unwrap() {
+        let path = graph.unwrap().path();
+        let output = bevworld(&["check", path.to_str().unwrap()]);
+        assert!(output.status.success(), "{}: {}", path.display(), text(&output));
+        let dot = bevworld(&["graph", path.to_str().unwrap(), "--dot"]);
+        assert!(String::from_utf8_lossy(&dot.stdout).starts_with("digraph"));
+    }
+}
+
+#[test]
+fn a_missing_dataset_fails_naming_node_and_path() {
+    let output = bevworld(&["run", "configs/graphs/replay.yaml", "--set", "source.data=/no/such/dataset", "--set", "source.generate=null", "--no-progress"]);
+    assert_eq!(output.status.code(), Some(1));
+    let message = text(&output);
+    assert!(message.contains("node 'source'") && message.contains("/no/such/dataset"), "{message}");
+}
+
+#[test]
+fn a_corrupt_frame_is_skipped_under_skip_and_stops_under_stop() {
+    // Two synthetic frames; the second one's front camera image is corrupted.
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let output = bevworld(&["synth", "--out", data.to_str().unwrap(), "--seconds", "1", "--camera-size", "64x36", "--azimuth-step", "3"]);
+    assert!(output.status.success(), "{}", text(&output));
+    let keyframe = std::fs::read_dir(data.join("samples/CAM_FRONT")).unwrap().map(|e| e.unwrap().path()).max().unwrap();
+    std::fs::write(&keyframe, b"not an image").unwrap();
+    let out = dir.path().join("out");
+    let run = |on_error: &str| {
+        bevworld(&[
+            "run", "configs/graphs/replay.yaml",
+            "--set", &format!("source.data={}", data.display()),
+            "--set", "source.sweeps=true",
+            "--set", &format!("source.on_error={on_error}"),
+            "--set", "source.pacing.speed=0",
+            "--set", &format!("images.out={}", out.display()),
+            "--set", &format!("sweeps.out={}", out.display()),
+            "--metrics", dir.path().join(format!("{on_error}.json")).to_str().unwrap(),
+            "--no-progress",
+        ])
+    };
+    let skipped = run("skip");
+    assert!(skipped.status.success(), "{}", text(&skipped));
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.path().join("skip.json")).unwrap()).unwrap();
+    let source = report["nodes"].as_array().unwrap().iter().find(|n| n["id"] == "source").unwrap();
+    assert_eq!(source["skips"], 1);
+    assert_eq!(source["items_out"], 11, "the other 11 frames go through");
+    let stopped = run("stop");
+    assert_eq!(stopped.status.code(), Some(1));
+    let message = text(&stopped);
+    assert!(message.contains("node 'source'") && message.contains("CAM_FRONT") && message.contains("corrupt image"), "{message}");
+}
+
+#[test]
+fn bad_set_syntax_is_an_error() {
+    let output = bevworld(&["check", "configs/graphs/replay.yaml", "--set", "nodot"]);
+    assert_eq!(output.status.code(), Some(1));
+    assert!(text(&output).contains("not node.key=value"));
+}
