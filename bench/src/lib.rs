@@ -1,1 +1,55 @@
+//! Shared benchmark helpers: timing summaries, tables, SVG plots and result files.
+//!
+//! Benchmarks print a table, and write `bench/results/<name>.md`, `.json` and `.svg`. Timings
+//! live here, never in test assertions.
 
+pub mod plot;
+
+use std::path::PathBuf;
+
+/// Where results go: `bench/results/`, from any working directory.
+pub fn results_dir() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("results");
+    let _ = std::fs::create_dir_all(&dir);
+    dir
+}
+
+/// A one-line description of this machine, recorded with every result.
+pub fn machine() -> String {
+    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|text| text.lines().find(|l| l.starts_with("model name")).map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string()))
+        .unwrap_or_else(|| "unknown CPU".into());
+    format!("{cores} cores, {model}")
+}
+
+/// Percentile of a sorted slice (nearest rank).
+pub fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let rank = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
+    sorted[rank - 1]
+}
+
+/// A Markdown table.
+pub fn markdown_table(header: &[&str], rows: &[Vec<String>]) -> String {
+    let mut out = format!("| {} |\n|{}|\n", header.join(" | "), header.iter().map(|_| "---").collect::<Vec<_>>().join("|"));
+    for row in rows {
+        out.push_str(&format!("| {} |\n", row.join(" | ")));
+    }
+    out
+}
+
+/// Writes `<name>.md` (with the command that reproduces it) and `<name>.json`.
+pub fn write_results(name: &str, title: &str, command: &str, table: &str, notes: &str, json: &serde_json::Value) {
+    let dir = results_dir();
+    let markdown = format!(
+        "# {title}\n\nMachine: {}\n\nReproduce: `{command}`\n\n{table}\n{notes}\n",
+        machine()
+    );
+    let _ = std::fs::write(dir.join(format!("{name}.md")), markdown);
+    let _ = std::fs::write(dir.join(format!("{name}.json")), serde_json::to_string_pretty(json).unwrap_or_default());
+    println!("results written to {}", dir.join(format!("{name}.md")).display());
+}

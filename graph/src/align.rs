@@ -67,7 +67,7 @@ impl Aligner {
 mod tests {
     use super::*;
     use crate::message::Header;
-    use std::time::Instant;
+    use crate::message::Instant;
 
     fn at(tov: i64) -> Message {
         Message::new(Header { seq: 0, time_of_validity_us: tov, entered_graph: Instant::now() }, tov)

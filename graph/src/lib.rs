@@ -23,7 +23,7 @@ pub mod validate;
 
 pub use diagnostic::{Diagnostic, Diagnostics};
 pub use error::{NodeError, RunError};
-pub use message::{Header, Message};
+pub use message::{Header, Instant, Message};
 pub use metrics::{NodeReport, RunReport};
 pub use node::{Inputs, Node, Outputs, Role, Sink, Source, SourceInfo, Task};
 pub use pacing::Pacing;

@@ -3,10 +3,9 @@
 
 use std::any::Any;
 use std::sync::Arc;
-use std::time::Instant;
 
 use crate::error::NodeError;
-use crate::message::{Header, Message};
+use crate::message::{Header, Instant, Message};
 use crate::policy::{EdgeSender, SendOutcome};
 
 /// What a source knows about its stream before it starts.
@@ -183,7 +182,8 @@ impl Outputs {
     /// Sources call this once per item, before sending: it starts a new header.
     pub fn set_time_of_validity(&mut self, time_of_validity_us: i64) {
         if self.is_source {
-            self.header = Header { seq: self.seq, time_of_validity_us, entered_graph: Instant::now() };
+            // `entered_graph` is stamped when the pacer releases the item (see `flush`).
+            self.header = Header { seq: self.seq, time_of_validity_us, entered_graph: self.header.entered_graph };
             self.seq += 1;
         } else {
             self.header.time_of_validity_us = time_of_validity_us;
@@ -211,25 +211,34 @@ impl Outputs {
     }
 
     /// Releases a source's buffered sends, stamped with the release time.
-    pub(crate) fn flush(&mut self) -> Result<(), NodeError> {
-        let released = Instant::now();
-        let pending = std::mem::take(&mut self.pending);
-        for (index, mut message) in pending {
+    pub(crate) fn flush(&mut self, released: Instant) -> Result<(), NodeError> {
+        // Drain in place so the buffer keeps its capacity: no allocation per item.
+        let mut pending = std::mem::take(&mut self.pending);
+        let mut result = Ok(());
+        for (index, mut message) in pending.drain(..) {
             message.restamp(released);
-            self.deliver(index, message)?;
+            if result.is_ok() {
+                result = self.deliver(index, message);
+            }
         }
-        Ok(())
+        self.pending = pending;
+        result
     }
 
     fn deliver(&mut self, index: usize, message: Message) -> Result<(), NodeError> {
         let edges = &self.edges[index];
+        let Some((last, others)) = edges.split_last() else { return Ok(()) };
         let mut closed = 0usize;
-        for edge in edges {
+        for edge in others {
             if edge.send(message.clone()) == SendOutcome::Closed {
                 closed += 1;
             }
         }
-        if closed > 0 && closed == edges.len() {
+        // The last edge takes the message itself: one reference-count round trip less per hop.
+        if last.send(message) == SendOutcome::Closed {
+            closed += 1;
+        }
+        if closed == edges.len() {
             return Err(NodeError::Shutdown);
         }
         Ok(())

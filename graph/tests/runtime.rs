@@ -293,7 +293,7 @@ edges:
 #[test]
 fn fan_out_shares_payloads_instead_of_copying() {
     use bevworld_graph::{Header, Message};
-    let message = Message::new(Header { seq: 0, time_of_validity_us: 0, entered_graph: Instant::now() }, vec![0u8; 1 << 20]);
+    let message = Message::new(Header { seq: 0, time_of_validity_us: 0, entered_graph: bevworld_graph::Instant::now() }, vec![0u8; 1 << 20]);
     let copy = message.clone();
     assert!(copy.shares_payload_with(&message));
 }

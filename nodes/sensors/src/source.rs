@@ -43,6 +43,9 @@ pub struct DatasetSourceParams {
     /// Stop after this many frames.
     #[serde(default)]
     pub max_frames: Option<usize>,
+    /// Replay the selected frames this many times (soak tests, benchmarks on one real frame).
+    #[serde(default = "one")]
+    pub repeat: usize,
     /// Shard `i/n`: only scenes whose position in the dataset is i mod n.
     #[serde(default)]
     pub shard: Option<String>,
@@ -101,6 +104,9 @@ impl DatasetSource {
     pub fn new(params: DatasetSourceParams) -> Result<Self, ParamError> {
         if let Some(shard) = &params.shard {
             parse_shard(shard).map_err(|message| ParamError::field("shard", message).with_accepted("I/N with 0 <= I < N"))?;
+        }
+        if params.repeat == 0 {
+            return Err(ParamError::field("repeat", "must be at least 1").with_accepted("an integer >= 1"));
         }
         if params.data.as_os_str().is_empty() {
             return Err(ParamError::field("data", "is empty").with_accepted("a dataset folder"));
@@ -181,6 +187,10 @@ impl Source for DatasetSource {
             .collect();
         if let Some(max) = self.params.max_frames {
             indices.truncate(max);
+        }
+        let once = indices.clone();
+        for _ in 1..self.params.repeat {
+            indices.extend_from_slice(&once);
         }
         let total = indices.len() as u64;
         self.indices = indices;
