@@ -12,7 +12,11 @@ use bevworld_graph::{Override, RunOptions, StopHandle};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "bevworld", version, about = "BEVWorld: a multimodal world model for autonomous driving, as a dataflow graph of actors")]
+#[command(
+    name = "bevworld",
+    version,
+    about = "BEVWorld: a multimodal world model for autonomous driving, as a dataflow graph of actors"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -78,21 +82,34 @@ fn main() -> ExitCode {
 }
 
 fn init_tracing() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
 }
 
 fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
-        Command::Run { graph, set, metrics, no_progress } => run(&graph, &set, metrics.as_deref(), !no_progress),
+        Command::Run {
+            graph,
+            set,
+            metrics,
+            no_progress,
+        } => run(&graph, &set, metrics.as_deref(), !no_progress),
         Command::Check { graph, set } => {
-            let Some(resolved) = load(&graph, &set)? else { return Ok(ExitCode::from(2)) };
+            let Some(resolved) = load(&graph, &set)? else {
+                return Ok(ExitCode::from(2));
+            };
             print!("{}", resolved.describe());
             println!("ok");
             Ok(ExitCode::SUCCESS)
         }
         Command::Graph { graph, dot, set } => {
-            let Some(resolved) = load(&graph, &set)? else { return Ok(ExitCode::from(2)) };
+            let Some(resolved) = load(&graph, &set)? else {
+                return Ok(ExitCode::from(2));
+            };
             if dot {
                 print!("{}", bevworld_graph::dot::to_dot(&resolved));
             } else {
@@ -104,7 +121,12 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             for kind in registry::registry().kinds() {
                 println!("{} [{}]: {}", kind.name, kind.role.as_str(), kind.summary);
                 for port in &kind.inputs {
-                    println!("    in  {}: {}{}", port.name, port.ty.name(), if port.required { "" } else { " (optional)" });
+                    println!(
+                        "    in  {}: {}{}",
+                        port.name,
+                        port.ty.name(),
+                        if port.required { "" } else { " (optional)" }
+                    );
                 }
                 for port in &kind.outputs {
                     println!("    out {}: {}", port.name, port.ty.name());
@@ -141,7 +163,9 @@ fn load(path: &Path, set: &[String]) -> Result<Option<bevworld_graph::ResolvedGr
 }
 
 fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> Result<ExitCode> {
-    let Some(graph) = load(path, set)? else { return Ok(ExitCode::from(2)) };
+    let Some(graph) = load(path, set)? else {
+        return Ok(ExitCode::from(2));
+    };
     let stop = StopHandle::new();
     let handler_stop = stop.clone();
     static PRESSES: AtomicUsize = AtomicUsize::new(0);
@@ -159,9 +183,11 @@ fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> R
     print!("{}", outcome.report.table());
     if let Some(file) = metrics {
         if let Some(parent) = file.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+            std::fs::create_dir_all(parent)
+                .with_context(|| format!("creating {}", parent.display()))?;
         }
-        std::fs::write(file, outcome.report.to_json()).with_context(|| format!("writing metrics to {}", file.display()))?;
+        std::fs::write(file, outcome.report.to_json())
+            .with_context(|| format!("writing metrics to {}", file.display()))?;
     }
     if let Some(error) = outcome.error {
         bail!(error);

@@ -4,11 +4,19 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn bevworld(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bevworld")).args(args).current_dir(env!("CARGO_MANIFEST_DIR")).output().unwrap()
+    Command::new(env!("CARGO_BIN_EXE_bevworld"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap()
 }
 
 fn text(output: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr))
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    )
 }
 
 fn nuscenes() -> PathBuf {
@@ -34,7 +42,14 @@ fn replay_writes_pngs_and_a_ply_that_parse_back() {
         "--no-progress",
     ]);
     assert!(output.status.success(), "{}", text(&output));
-    for channel in ["CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT"] {
+    for channel in [
+        "CAM_FRONT",
+        "CAM_FRONT_RIGHT",
+        "CAM_BACK_RIGHT",
+        "CAM_BACK",
+        "CAM_BACK_LEFT",
+        "CAM_FRONT_LEFT",
+    ] {
         let png = image::open(out.path().join(format!("000000/{channel}.png"))).unwrap();
         assert_eq!((png.width(), png.height()), (1600, 900), "{channel}");
         assert!(matches!(png, image::DynamicImage::ImageRgb8(_)));
@@ -45,11 +60,26 @@ fn replay_writes_pngs_and_a_ply_that_parse_back() {
     let points = bevworld_sinks_ply::read(&ply);
     assert_eq!(points, 34_688);
     // No temporary files left behind by the atomic writes.
-    let leftovers: Vec<_> = std::fs::read_dir(out.path().join("000000")).unwrap().filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".tmp")).collect();
+    let leftovers: Vec<_> = std::fs::read_dir(out.path().join("000000"))
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .ends_with(".tmp")
+        })
+        .collect();
     assert!(leftovers.is_empty());
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
     assert_eq!(report["outcome"], "completed");
-    let source = report["nodes"].as_array().unwrap().iter().find(|n| n["id"] == "source").unwrap();
+    let source = report["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == "source")
+        .unwrap();
     assert_eq!(source["items_out"], 1);
 }
 
@@ -75,17 +105,30 @@ fn check_reports_problems_with_positions_and_exits_2() {
     let output = bevworld(&["check", graph.to_str().unwrap()]);
     assert_eq!(output.status.code(), Some(2));
     let message = text(&output);
-    assert!(message.contains("bad.yaml:2:") && message.contains("did you mean 'dataset_source'"), "{message}");
-    assert!(message.contains("'colour'") && message.contains("accepted:"), "{message}");
+    assert!(
+        message.contains("bad.yaml:2:") && message.contains("did you mean 'dataset_source'"),
+        "{message}"
+    );
+    assert!(
+        message.contains("'colour'") && message.contains("accepted:"),
+        "{message}"
+    );
     assert!(message.contains("required input 'png.images'"), "{message}");
 }
 
 #[test]
 fn check_and_dot_on_the_shipped_graphs() {
-    for graph in std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/graphs")).unwrap() {
+    for graph in
+        std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/graphs")).unwrap()
+    {
         let path = graph.unwrap().path();
         let output = bevworld(&["check", path.to_str().unwrap()]);
-        assert!(output.status.success(), "{}: {}", path.display(), text(&output));
+        assert!(
+            output.status.success(),
+            "{}: {}",
+            path.display(),
+            text(&output)
+        );
         let dot = bevworld(&["graph", path.to_str().unwrap(), "--dot"]);
         assert!(String::from_utf8_lossy(&dot.stdout).starts_with("digraph"));
     }
@@ -93,10 +136,21 @@ fn check_and_dot_on_the_shipped_graphs() {
 
 #[test]
 fn a_missing_dataset_fails_naming_node_and_path() {
-    let output = bevworld(&["run", "configs/graphs/replay.yaml", "--set", "source.data=/no/such/dataset", "--set", "source.generate=null", "--no-progress"]);
+    let output = bevworld(&[
+        "run",
+        "configs/graphs/replay.yaml",
+        "--set",
+        "source.data=/no/such/dataset",
+        "--set",
+        "source.generate=null",
+        "--no-progress",
+    ]);
     assert_eq!(output.status.code(), Some(1));
     let message = text(&output);
-    assert!(message.contains("node 'source'") && message.contains("/no/such/dataset"), "{message}");
+    assert!(
+        message.contains("node 'source'") && message.contains("/no/such/dataset"),
+        "{message}"
+    );
 }
 
 #[test]
@@ -104,34 +158,70 @@ fn a_corrupt_frame_is_skipped_under_skip_and_stops_under_stop() {
     // Two synthetic frames; the second one's front camera image is corrupted.
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let output = bevworld(&["synth", "--out", data.to_str().unwrap(), "--seconds", "1", "--camera-size", "64x36", "--azimuth-step", "3"]);
+    let output = bevworld(&[
+        "synth",
+        "--out",
+        data.to_str().unwrap(),
+        "--seconds",
+        "1",
+        "--camera-size",
+        "64x36",
+        "--azimuth-step",
+        "3",
+    ]);
     assert!(output.status.success(), "{}", text(&output));
-    let keyframe = std::fs::read_dir(data.join("samples/CAM_FRONT")).unwrap().map(|e| e.unwrap().path()).max().unwrap();
+    let keyframe = std::fs::read_dir(data.join("samples/CAM_FRONT"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .max()
+        .unwrap();
     std::fs::write(&keyframe, b"not an image").unwrap();
     let out = dir.path().join("out");
     let run = |on_error: &str| {
         bevworld(&[
-            "run", "configs/graphs/replay.yaml",
-            "--set", &format!("source.data={}", data.display()),
-            "--set", "source.sweeps=true",
-            "--set", &format!("source.on_error={on_error}"),
-            "--set", "source.pacing.speed=0",
-            "--set", &format!("images.out={}", out.display()),
-            "--set", &format!("sweeps.out={}", out.display()),
-            "--metrics", dir.path().join(format!("{on_error}.json")).to_str().unwrap(),
+            "run",
+            "configs/graphs/replay.yaml",
+            "--set",
+            &format!("source.data={}", data.display()),
+            "--set",
+            "source.sweeps=true",
+            "--set",
+            &format!("source.on_error={on_error}"),
+            "--set",
+            "source.pacing.speed=0",
+            "--set",
+            &format!("images.out={}", out.display()),
+            "--set",
+            &format!("sweeps.out={}", out.display()),
+            "--metrics",
+            dir.path()
+                .join(format!("{on_error}.json"))
+                .to_str()
+                .unwrap(),
             "--no-progress",
         ])
     };
     let skipped = run("skip");
     assert!(skipped.status.success(), "{}", text(&skipped));
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.path().join("skip.json")).unwrap()).unwrap();
-    let source = report["nodes"].as_array().unwrap().iter().find(|n| n["id"] == "source").unwrap();
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("skip.json")).unwrap()).unwrap();
+    let source = report["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == "source")
+        .unwrap();
     assert_eq!(source["skips"], 1);
     assert_eq!(source["items_out"], 11, "the other 11 frames go through");
     let stopped = run("stop");
     assert_eq!(stopped.status.code(), Some(1));
     let message = text(&stopped);
-    assert!(message.contains("node 'source'") && message.contains("CAM_FRONT") && message.contains("corrupt image"), "{message}");
+    assert!(
+        message.contains("node 'source'")
+            && message.contains("CAM_FRONT")
+            && message.contains("corrupt image"),
+        "{message}"
+    );
 }
 
 #[test]

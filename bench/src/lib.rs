@@ -16,10 +16,16 @@ pub fn results_dir() -> PathBuf {
 
 /// A one-line description of this machine, recorded with every result.
 pub fn machine() -> String {
-    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
     let model = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
-        .and_then(|text| text.lines().find(|l| l.starts_with("model name")).map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string()))
+        .and_then(|text| {
+            text.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
         .unwrap_or_else(|| "unknown CPU".into());
     format!("{cores} cores, {model}")
 }
@@ -35,7 +41,11 @@ pub fn percentile(sorted: &[f64], q: f64) -> f64 {
 
 /// A Markdown table.
 pub fn markdown_table(header: &[&str], rows: &[Vec<String>]) -> String {
-    let mut out = format!("| {} |\n|{}|\n", header.join(" | "), header.iter().map(|_| "---").collect::<Vec<_>>().join("|"));
+    let mut out = format!(
+        "| {} |\n|{}|\n",
+        header.join(" | "),
+        header.iter().map(|_| "---").collect::<Vec<_>>().join("|")
+    );
     for row in rows {
         out.push_str(&format!("| {} |\n", row.join(" | ")));
     }
@@ -43,13 +53,26 @@ pub fn markdown_table(header: &[&str], rows: &[Vec<String>]) -> String {
 }
 
 /// Writes `<name>.md` (with the command that reproduces it) and `<name>.json`.
-pub fn write_results(name: &str, title: &str, command: &str, table: &str, notes: &str, json: &serde_json::Value) {
+pub fn write_results(
+    name: &str,
+    title: &str,
+    command: &str,
+    table: &str,
+    notes: &str,
+    json: &serde_json::Value,
+) {
     let dir = results_dir();
     let markdown = format!(
         "# {title}\n\nMachine: {}\n\nReproduce: `{command}`\n\n{table}\n{notes}\n",
         machine()
     );
     let _ = std::fs::write(dir.join(format!("{name}.md")), markdown);
-    let _ = std::fs::write(dir.join(format!("{name}.json")), serde_json::to_string_pretty(json).unwrap_or_default());
-    println!("results written to {}", dir.join(format!("{name}.md")).display());
+    let _ = std::fs::write(
+        dir.join(format!("{name}.json")),
+        serde_json::to_string_pretty(json).unwrap_or_default(),
+    );
+    println!(
+        "results written to {}",
+        dir.join(format!("{name}.md")).display()
+    );
 }

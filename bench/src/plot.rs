@@ -13,24 +13,60 @@ pub fn bars(title: &str, unit: &str, items: &[(String, f64)], log_scale: bool) -
     let scale = |v: f64| -> f64 {
         let plot = width - left - 90.0;
         if log_scale {
-            let lo = items.iter().map(|(_, v)| *v).filter(|v| *v > 0.0).fold(f64::INFINITY, f64::min).min(max) / 2.0;
+            let lo = items
+                .iter()
+                .map(|(_, v)| *v)
+                .filter(|v| *v > 0.0)
+                .fold(f64::INFINITY, f64::min)
+                .min(max)
+                / 2.0;
             plot * ((v.max(lo) / lo).ln() / (max / lo).ln()).clamp(0.0, 1.0)
         } else {
             plot * v / max
         }
     };
     let mut svg = String::new();
-    let _ = writeln!(svg, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="Helvetica, Arial, sans-serif" font-size="13">"#);
+    let _ = writeln!(
+        svg,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="Helvetica, Arial, sans-serif" font-size="13">"#
+    );
     let _ = writeln!(svg, r#"<rect width="100%" height="100%" fill="white"/>"#);
-    let _ = writeln!(svg, r#"<text x="{}" y="28" font-size="16" font-weight="bold">{}</text>"#, 10, escape(title));
+    let _ = writeln!(
+        svg,
+        r#"<text x="{}" y="28" font-size="16" font-weight="bold">{}</text>"#,
+        10,
+        escape(title)
+    );
     for (index, (label, value)) in items.iter().enumerate() {
         let y = top + index as f64 * (bar_height + 10.0);
         let w = scale(*value);
-        let _ = writeln!(svg, r#"<text x="{}" y="{}" text-anchor="end">{}</text>"#, left - 8.0, y + bar_height * 0.68, escape(label));
-        let _ = writeln!(svg, r##"<rect x="{left}" y="{y}" width="{w:.1}" height="{bar_height}" fill="#3b6ea8"/>"##);
-        let _ = writeln!(svg, r#"<text x="{:.1}" y="{}">{} {}</text>"#, left + w + 6.0, y + bar_height * 0.68, format_value(*value), escape(unit));
+        let _ = writeln!(
+            svg,
+            r#"<text x="{}" y="{}" text-anchor="end">{}</text>"#,
+            left - 8.0,
+            y + bar_height * 0.68,
+            escape(label)
+        );
+        let _ = writeln!(
+            svg,
+            r##"<rect x="{left}" y="{y}" width="{w:.1}" height="{bar_height}" fill="#3b6ea8"/>"##
+        );
+        let _ = writeln!(
+            svg,
+            r#"<text x="{:.1}" y="{}">{} {}</text>"#,
+            left + w + 6.0,
+            y + bar_height * 0.68,
+            format_value(*value),
+            escape(unit)
+        );
     }
-    let _ = writeln!(svg, r##"<text x="{left}" y="{}" fill="#555">{}{}</text>"##, height - 12.0, escape(unit), if log_scale { " (log scale)" } else { "" });
+    let _ = writeln!(
+        svg,
+        r##"<text x="{left}" y="{}" fill="#555">{}{}</text>"##,
+        height - 12.0,
+        escape(unit),
+        if log_scale { " (log scale)" } else { "" }
+    );
     svg.push_str("</svg>\n");
     svg
 }
@@ -48,5 +84,7 @@ fn format_value(v: f64) -> String {
 }
 
 fn escape(text: &str) -> String {
-    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
 }

@@ -19,7 +19,11 @@ pub struct Aligner {
 
 impl Aligner {
     pub fn new(inputs: usize, tolerance_us: i64) -> Self {
-        Self { queues: (0..inputs).map(|_| VecDeque::new()).collect(), tolerance_us: tolerance_us.max(0), unmatched: 0 }
+        Self {
+            queues: (0..inputs).map(|_| VecDeque::new()).collect(),
+            tolerance_us: tolerance_us.max(0),
+            unmatched: 0,
+        }
     }
 
     pub fn push(&mut self, port: usize, message: Message) {
@@ -38,7 +42,10 @@ impl Aligner {
             }
             let mut discarded = false;
             for queue in &mut self.queues {
-                while queue.front().is_some_and(|m| m.header().time_of_validity_us < newest - self.tolerance_us) {
+                while queue
+                    .front()
+                    .is_some_and(|m| m.header().time_of_validity_us < newest - self.tolerance_us)
+                {
                     queue.pop_front();
                     self.unmatched += 1;
                     discarded = true;
@@ -70,11 +77,21 @@ mod tests {
     use crate::message::Instant;
 
     fn at(tov: i64) -> Message {
-        Message::new(Header { seq: 0, time_of_validity_us: tov, entered_graph: Instant::now() }, tov)
+        Message::new(
+            Header {
+                seq: 0,
+                time_of_validity_us: tov,
+                entered_graph: Instant::now(),
+            },
+            tov,
+        )
     }
 
     fn tovs(group: &[Option<Message>]) -> Vec<i64> {
-        group.iter().map(|m| *m.as_ref().unwrap().get::<i64>().unwrap()).collect()
+        group
+            .iter()
+            .map(|m| *m.as_ref().unwrap().get::<i64>().unwrap())
+            .collect()
     }
 
     #[test]

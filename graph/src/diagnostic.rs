@@ -20,7 +20,11 @@ pub struct Diagnostic {
 impl fmt::Display for Diagnostic {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match &self.position {
-            Some(position) => write!(f, "{}:{}:{}: error: {}", self.file, position.line, position.column, self.message)?,
+            Some(position) => write!(
+                f,
+                "{}:{}:{}: error: {}",
+                self.file, position.line, position.column, self.message
+            )?,
             None => write!(f, "{}: error: {}", self.file, self.message)?,
         }
         if let Some(hint) = &self.hint {
@@ -55,7 +59,9 @@ impl Diagnostics {
 
     /// True when some finding's message contains `needle`; for tests and tooling.
     pub fn mentions(&self, needle: &str) -> bool {
-        self.0.iter().any(|d| d.message.contains(needle) || d.hint.as_deref().is_some_and(|h| h.contains(needle)))
+        self.0.iter().any(|d| {
+            d.message.contains(needle) || d.hint.as_deref().is_some_and(|h| h.contains(needle))
+        })
     }
 }
 
@@ -77,7 +83,11 @@ fn edit_distance(a: &str, b: &str) -> usize {
         row[0] = i + 1;
         for (j, cb) in b.iter().enumerate() {
             let current = row[j + 1];
-            row[j + 1] = if ca == *cb { previous } else { 1 + previous.min(row[j]).min(row[j + 1]) };
+            row[j + 1] = if ca == *cb {
+                previous
+            } else {
+                1 + previous.min(row[j]).min(row[j + 1])
+            };
             previous = current;
         }
     }

@@ -5,7 +5,10 @@ use crate::validate::ResolvedGraph;
 
 pub fn to_dot(graph: &ResolvedGraph) -> String {
     let mut out = String::new();
-    out.push_str(&format!("digraph \"{}\" {{\n  rankdir=LR;\n  node [fontname=\"Helvetica\"];\n", escape(&graph.name)));
+    out.push_str(&format!(
+        "digraph \"{}\" {{\n  rankdir=LR;\n  node [fontname=\"Helvetica\"];\n",
+        escape(&graph.name)
+    ));
     for node in &graph.nodes {
         let shape = match node.kind.role {
             Role::Source => "invhouse",
@@ -22,7 +25,11 @@ pub fn to_dot(graph: &ResolvedGraph) -> String {
     for edge in &graph.edges {
         let from = &graph.nodes[edge.from_node];
         let to = &graph.nodes[edge.to_node];
-        let style = if edge.policy == crate::policy::EdgePolicy::Block { "solid" } else { "dashed" };
+        let style = if edge.policy == crate::policy::EdgePolicy::Block {
+            "solid"
+        } else {
+            "dashed"
+        };
         out.push_str(&format!(
             "  \"{}\" -> \"{}\" [label=\"{} → {}\\n{} ×{}\", style={style}];\n",
             escape(&from.id),

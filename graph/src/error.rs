@@ -55,9 +55,17 @@ pub fn chain(error: &(dyn std::error::Error + 'static)) -> String {
 #[derive(Debug, Error)]
 pub enum RunError {
     #[error("node '{node}' ({kind}) failed: {cause}")]
-    NodeFailed { node: String, kind: String, cause: String },
+    NodeFailed {
+        node: String,
+        kind: String,
+        cause: String,
+    },
     #[error("node '{node}' ({kind}) panicked: {cause}")]
-    NodePanicked { node: String, kind: String, cause: String },
+    NodePanicked {
+        node: String,
+        kind: String,
+        cause: String,
+    },
     #[error("nodes did not stop within {grace_ms} ms after shutdown: {nodes:?}")]
     Hung { nodes: Vec<String>, grace_ms: u64 },
     #[error("could not start the runtime: {0}")]

@@ -70,7 +70,10 @@ async fn write_atomic_async(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 }
 
 fn temporary_path(path: &Path) -> PathBuf {
-    let mut name = path.file_name().map(|n| n.to_os_string()).unwrap_or_default();
+    let mut name = path
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_default();
     name.push(format!(".{}.tmp", std::process::id()));
     path.with_file_name(name)
 }
@@ -86,7 +89,9 @@ where
 
 /// Waits for a job started with `spawn_io`.
 pub fn wait<T>(handle: JoinHandle<T>) -> std::io::Result<T> {
-    runtime()?.block_on(handle).map_err(|join| std::io::Error::other(format!("I/O task failed: {join}")))
+    runtime()?
+        .block_on(handle)
+        .map_err(|join| std::io::Error::other(format!("I/O task failed: {join}")))
 }
 
 /// Reads a whole file on the I/O pool, for prefetching the next item while this one computes.
@@ -112,16 +117,24 @@ mod tests {
     fn atomic_write_leaves_only_the_final_file() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("a.bin");
-        write_atomic(path.clone(), vec![1, 2, 3]).unwrap().wait().unwrap();
+        write_atomic(path.clone(), vec![1, 2, 3])
+            .unwrap()
+            .wait()
+            .unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), vec![1, 2, 3]);
-        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names.len(), 1);
     }
 
     #[test]
     fn write_into_missing_directory_is_an_error_not_a_panic() {
         let dir = tempfile::tempdir().unwrap();
-        let result = write_atomic(dir.path().join("no/such/dir/a.bin"), vec![1]).unwrap().wait();
+        let result = write_atomic(dir.path().join("no/such/dir/a.bin"), vec![1])
+            .unwrap()
+            .wait();
         assert!(result.is_err());
     }
 }

@@ -35,7 +35,11 @@ pub use schema::{OnError, SyncMode};
 pub use validate::{Override, ResolvedGraph, resolve};
 
 /// Reads and validates a graph file.
-pub fn load(path: &std::path::Path, registry: &Registry, overrides: &[Override]) -> Result<ResolvedGraph, Diagnostics> {
+pub fn load(
+    path: &std::path::Path,
+    registry: &Registry,
+    overrides: &[Override],
+) -> Result<ResolvedGraph, Diagnostics> {
     let file = path.display().to_string();
     match std::fs::read_to_string(path) {
         Ok(text) => resolve(&text, &file, registry, overrides),

@@ -3,9 +3,9 @@
 //! Payloads sit behind an `Arc`, so fan-out and hand-over between nodes move a pointer and never
 //! deep-copy a camera image or a point cloud.
 
+pub use quanta::Instant;
 use std::any::Any;
 use std::sync::Arc;
-pub use quanta::Instant;
 
 use crate::error::NodeError;
 
@@ -30,13 +30,18 @@ pub struct Message {
 
 impl std::fmt::Debug for Message {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Message").field("header", &self.header).finish_non_exhaustive()
+        f.debug_struct("Message")
+            .field("header", &self.header)
+            .finish_non_exhaustive()
     }
 }
 
 impl Message {
     pub fn new<T: Any + Send + Sync>(header: Header, payload: T) -> Self {
-        Self { header, payload: Arc::new(payload) }
+        Self {
+            header,
+            payload: Arc::new(payload),
+        }
     }
 
     pub fn from_shared<T: Any + Send + Sync>(header: Header, payload: Arc<T>) -> Self {

@@ -21,7 +21,11 @@ const BUCKETS: usize = (64 - SUB_BUCKET_BITS as usize + 1) * SUB_BUCKETS as usiz
 
 impl Default for LatencyHistogram {
     fn default() -> Self {
-        Self { counts: vec![0; BUCKETS], total: 0, max_ns: 0 }
+        Self {
+            counts: vec![0; BUCKETS],
+            total: 0,
+            max_ns: 0,
+        }
     }
 }
 
@@ -217,7 +221,8 @@ impl RunReport {
     }
 
     pub fn to_json(&self) -> String {
-        serde_json::to_string_pretty(self).unwrap_or_else(|error| format!("{{\"error\": \"{error}\"}}"))
+        serde_json::to_string_pretty(self)
+            .unwrap_or_else(|error| format!("{{\"error\": \"{error}\"}}"))
     }
 }
 

@@ -102,7 +102,10 @@ pub struct Inputs {
 impl Inputs {
     /// Builds an input group directly; for unit tests of nodes outside a running graph.
     pub fn from_messages(ports: &[&'static str], messages: Vec<Option<Message>>) -> Self {
-        Self { ports: ports.into(), messages }
+        Self {
+            ports: ports.into(),
+            messages,
+        }
     }
 
     fn index(&self, port: &str) -> Result<usize, NodeError> {
@@ -114,7 +117,10 @@ impl Inputs {
 
     /// The message on `port`, if this group has one.
     pub fn message(&self, port: &str) -> Option<&Message> {
-        self.index(port).ok().and_then(|i| self.messages.get(i)).and_then(Option::as_ref)
+        self.index(port)
+            .ok()
+            .and_then(|i| self.messages.get(i))
+            .and_then(Option::as_ref)
     }
 
     /// The payload on `port`; an error when the port has no message in this group.
@@ -150,11 +156,19 @@ pub struct Outputs {
 }
 
 impl Outputs {
-    pub(crate) fn new(ports: Arc<[&'static str]>, edges: Vec<Vec<EdgeSender>>, is_source: bool) -> Self {
+    pub(crate) fn new(
+        ports: Arc<[&'static str]>,
+        edges: Vec<Vec<EdgeSender>>,
+        is_source: bool,
+    ) -> Self {
         Self {
             ports,
             edges,
-            header: Header { seq: 0, time_of_validity_us: 0, entered_graph: Instant::now() },
+            header: Header {
+                seq: 0,
+                time_of_validity_us: 0,
+                entered_graph: Instant::now(),
+            },
             seq: 0,
             sent: 0,
             is_source,
@@ -164,7 +178,11 @@ impl Outputs {
 
     /// Outputs with no edges; sends go nowhere. For unit tests of nodes.
     pub fn detached(ports: &[&'static str]) -> Self {
-        Self::new(ports.into(), ports.iter().map(|_| Vec::new()).collect(), true)
+        Self::new(
+            ports.into(),
+            ports.iter().map(|_| Vec::new()).collect(),
+            true,
+        )
     }
 
     fn index(&self, port: &str) -> Result<usize, NodeError> {
@@ -176,14 +194,20 @@ impl Outputs {
 
     /// Whether anything listens on `port`, so a node can skip work nobody consumes.
     pub fn is_connected(&self, port: &str) -> bool {
-        self.index(port).map(|i| !self.edges[i].is_empty()).unwrap_or(false)
+        self.index(port)
+            .map(|i| !self.edges[i].is_empty())
+            .unwrap_or(false)
     }
 
     /// Sources call this once per item, before sending: it starts a new header.
     pub fn set_time_of_validity(&mut self, time_of_validity_us: i64) {
         if self.is_source {
             // `entered_graph` is stamped when the pacer releases the item (see `flush`).
-            self.header = Header { seq: self.seq, time_of_validity_us, entered_graph: self.header.entered_graph };
+            self.header = Header {
+                seq: self.seq,
+                time_of_validity_us,
+                entered_graph: self.header.entered_graph,
+            };
             self.seq += 1;
         } else {
             self.header.time_of_validity_us = time_of_validity_us;
@@ -199,7 +223,11 @@ impl Outputs {
     }
 
     /// Sends a payload that is already shared; fan-out clones the `Arc`, never the data.
-    pub fn send_shared<T: Any + Send + Sync>(&mut self, port: &str, payload: Arc<T>) -> Result<(), NodeError> {
+    pub fn send_shared<T: Any + Send + Sync>(
+        &mut self,
+        port: &str,
+        payload: Arc<T>,
+    ) -> Result<(), NodeError> {
         let index = self.index(port)?;
         let message = Message::from_shared(self.header, payload);
         self.sent += 1;
@@ -227,7 +255,9 @@ impl Outputs {
 
     fn deliver(&mut self, index: usize, message: Message) -> Result<(), NodeError> {
         let edges = &self.edges[index];
-        let Some((last, others)) = edges.split_last() else { return Ok(()) };
+        let Some((last, others)) = edges.split_last() else {
+            return Ok(());
+        };
         let mut closed = 0usize;
         for edge in others {
             if edge.send(message.clone()) == SendOutcome::Closed {

@@ -19,14 +19,14 @@ impl Pacing {
     pub fn from_decl(decl: &PacingDecl) -> Result<Self, String> {
         match (decl.speed, decl.rate_hz) {
             (Some(_), Some(_)) => Err("pacing takes either speed or rate_hz, not both".into()),
-            (Some(speed), None) if !(speed.is_finite() && speed >= 0.0) => {
-                Err(format!("pacing speed must be a finite number >= 0, got {speed}"))
-            }
+            (Some(speed), None) if !(speed.is_finite() && speed >= 0.0) => Err(format!(
+                "pacing speed must be a finite number >= 0, got {speed}"
+            )),
             (Some(speed), None) if speed == 0.0 => Ok(Self::Unpaced),
             (Some(speed), None) => Ok(Self::Recorded { speed }),
-            (None, Some(rate)) if !(rate.is_finite() && rate > 0.0) => {
-                Err(format!("pacing rate_hz must be a finite number > 0, got {rate}"))
-            }
+            (None, Some(rate)) if !(rate.is_finite() && rate > 0.0) => Err(format!(
+                "pacing rate_hz must be a finite number > 0, got {rate}"
+            )),
             (None, Some(rate_hz)) => Ok(Self::Fixed { rate_hz }),
             (None, None) => Ok(Self::Unpaced),
         }
@@ -51,7 +51,11 @@ pub struct Pacer {
 
 impl Pacer {
     pub fn new(pacing: Pacing) -> Self {
-        Self { pacing, start: None, released: 0 }
+        Self {
+            pacing,
+            start: None,
+            released: 0,
+        }
     }
 
     /// When the item with this time of validity may be released; `None` means now.
@@ -65,7 +69,9 @@ impl Pacer {
                 let elapsed_us = (time_of_validity_us - first_tov).max(0) as f64 / speed;
                 Some(start + Duration::from_secs_f64(elapsed_us / 1e6))
             }
-            Pacing::Fixed { rate_hz } => Some(start + Duration::from_secs_f64(index as f64 / rate_hz)),
+            Pacing::Fixed { rate_hz } => {
+                Some(start + Duration::from_secs_f64(index as f64 / rate_hz))
+            }
         }
     }
 }
@@ -83,7 +89,10 @@ mod tests {
         for k in 1..12 {
             pacer.deadline(k * 999, t0);
         }
-        assert_eq!(pacer.deadline(5, t0 + Duration::from_millis(500)), Some(t0 + Duration::from_secs(1)));
+        assert_eq!(
+            pacer.deadline(5, t0 + Duration::from_millis(500)),
+            Some(t0 + Duration::from_secs(1))
+        );
     }
 
     #[test]
@@ -97,9 +106,33 @@ mod tests {
 
     #[test]
     fn bad_pacing_is_rejected() {
-        assert!(Pacing::from_decl(&PacingDecl { speed: Some(-1.0), rate_hz: None }).is_err());
-        assert!(Pacing::from_decl(&PacingDecl { speed: None, rate_hz: Some(0.0) }).is_err());
-        assert!(Pacing::from_decl(&PacingDecl { speed: Some(1.0), rate_hz: Some(1.0) }).is_err());
-        assert_eq!(Pacing::from_decl(&PacingDecl { speed: Some(0.0), rate_hz: None }), Ok(Pacing::Unpaced));
+        assert!(
+            Pacing::from_decl(&PacingDecl {
+                speed: Some(-1.0),
+                rate_hz: None
+            })
+            .is_err()
+        );
+        assert!(
+            Pacing::from_decl(&PacingDecl {
+                speed: None,
+                rate_hz: Some(0.0)
+            })
+            .is_err()
+        );
+        assert!(
+            Pacing::from_decl(&PacingDecl {
+                speed: Some(1.0),
+                rate_hz: Some(1.0)
+            })
+            .is_err()
+        );
+        assert_eq!(
+            Pacing::from_decl(&PacingDecl {
+                speed: Some(0.0),
+                rate_hz: None
+            }),
+            Ok(Pacing::Unpaced)
+        );
     }
 }

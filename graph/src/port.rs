@@ -12,7 +12,10 @@ pub struct PortType {
 
 impl PortType {
     pub fn of<T: Any + Send + Sync>() -> Self {
-        Self { name: short_type_name::<T>(), id: TypeId::of::<T>() }
+        Self {
+            name: short_type_name::<T>(),
+            id: TypeId::of::<T>(),
+        }
     }
 
     pub fn name(&self) -> &'static str {
@@ -39,12 +42,20 @@ pub struct PortSpec {
 impl PortSpec {
     /// A required input, or an output.
     pub fn new<T: Any + Send + Sync>(name: &'static str) -> Self {
-        Self { name, ty: PortType::of::<T>(), required: true }
+        Self {
+            name,
+            ty: PortType::of::<T>(),
+            required: true,
+        }
     }
 
     /// An input that may be left unconnected.
     pub fn optional<T: Any + Send + Sync>(name: &'static str) -> Self {
-        Self { name, ty: PortType::of::<T>(), required: false }
+        Self {
+            name,
+            ty: PortType::of::<T>(),
+            required: false,
+        }
     }
 }
 
@@ -61,7 +72,9 @@ pub fn short_type_name<T: ?Sized>() -> &'static str {
         Ok(guard) => guard,
         Err(poisoned) => poisoned.into_inner(),
     };
-    guard.entry(full).or_insert_with(|| Box::leak(strip_paths(full).into_boxed_str()))
+    guard
+        .entry(full)
+        .or_insert_with(|| Box::leak(strip_paths(full).into_boxed_str()))
 }
 
 fn strip_paths(full: &str) -> String {

@@ -23,7 +23,11 @@ pub struct ParamError {
 
 impl ParamError {
     pub fn field(field: impl Into<String>, message: impl Into<String>) -> Self {
-        Self { field: Some(field.into()), message: message.into(), accepted: None }
+        Self {
+            field: Some(field.into()),
+            message: message.into(),
+            accepted: None,
+        }
     }
 
     pub fn with_accepted(mut self, accepted: impl Into<String>) -> Self {
@@ -59,11 +63,17 @@ impl NodeKind {
     }
 
     pub fn input(&self, name: &str) -> Option<(usize, &PortSpec)> {
-        self.inputs.iter().enumerate().find(|(_, port)| port.name == name)
+        self.inputs
+            .iter()
+            .enumerate()
+            .find(|(_, port)| port.name == name)
     }
 
     pub fn output(&self, name: &str) -> Option<(usize, &PortSpec)> {
-        self.outputs.iter().enumerate().find(|(_, port)| port.name == name)
+        self.outputs
+            .iter()
+            .enumerate()
+            .find(|(_, port)| port.name == name)
     }
 }
 
@@ -79,15 +89,28 @@ pub struct KindSpec {
 
 impl KindSpec {
     pub fn source(name: &'static str, summary: &'static str) -> Self {
-        Self { name, summary, role: Role::Source, inputs: Vec::new(), outputs: Vec::new(), default_sync: SyncMode::Aligned }
+        Self {
+            name,
+            summary,
+            role: Role::Source,
+            inputs: Vec::new(),
+            outputs: Vec::new(),
+            default_sync: SyncMode::Aligned,
+        }
     }
 
     pub fn task(name: &'static str, summary: &'static str) -> Self {
-        Self { role: Role::Task, ..Self::source(name, summary) }
+        Self {
+            role: Role::Task,
+            ..Self::source(name, summary)
+        }
     }
 
     pub fn sink(name: &'static str, summary: &'static str) -> Self {
-        Self { role: Role::Sink, ..Self::source(name, summary) }
+        Self {
+            role: Role::Sink,
+            ..Self::source(name, summary)
+        }
     }
 
     pub fn input(mut self, port: PortSpec) -> Self {
@@ -132,11 +155,18 @@ impl Registry {
             if node.role() != role {
                 return Err(ParamError {
                     field: None,
-                    message: format!("builder made a {} but the kind is a {}", node.role().as_str(), role.as_str()),
+                    message: format!(
+                        "builder made a {} but the kind is a {}",
+                        node.role().as_str(),
+                        role.as_str()
+                    ),
                     accepted: None,
                 });
             }
-            Ok(Built { node, resolved_params })
+            Ok(Built {
+                node,
+                resolved_params,
+            })
         };
         self.kinds.insert(
             spec.name,
@@ -177,8 +207,16 @@ fn deserialize_params<P: DeserializeOwned>(raw: &serde_json::Value) -> Result<P,
         let accepted = message
             .split_once("expected one of ")
             .map(|(_, rest)| rest.to_string())
-            .or_else(|| message.split_once("expected ").map(|(_, rest)| rest.to_string()));
-        ParamError { field, message, accepted }
+            .or_else(|| {
+                message
+                    .split_once("expected ")
+                    .map(|(_, rest)| rest.to_string())
+            });
+        ParamError {
+            field,
+            message,
+            accepted,
+        }
     })
 }
 
@@ -211,14 +249,16 @@ mod tests {
 
     #[test]
     fn unknown_key_names_the_key_and_the_accepted_ones() {
-        let error = deserialize_params::<Params>(&serde_json::json!({"rate": 1.0, "rat": 2})).unwrap_err();
+        let error =
+            deserialize_params::<Params>(&serde_json::json!({"rate": 1.0, "rat": 2})).unwrap_err();
         assert_eq!(error.field.as_deref(), Some("rat"));
         assert!(error.accepted.unwrap().contains("rate"));
     }
 
     #[test]
     fn bad_enum_value_lists_the_variants() {
-        let error = deserialize_params::<Params>(&serde_json::json!({"rate": 1.0, "mode": "slow"})).unwrap_err();
+        let error = deserialize_params::<Params>(&serde_json::json!({"rate": 1.0, "mode": "slow"}))
+            .unwrap_err();
         assert_eq!(error.field.as_deref(), Some("mode"));
         assert_eq!(error.accepted.as_deref(), Some("`fast` or `exact`"));
     }

@@ -38,7 +38,11 @@ pub struct StopHandle {
 impl Default for StopHandle {
     fn default() -> Self {
         let (tx, rx) = bounded(0);
-        Self { drain: Arc::new(AtomicBool::new(false)), abort_tx: Arc::new(Mutex::new(Some(tx))), abort_rx: rx }
+        Self {
+            drain: Arc::new(AtomicBool::new(false)),
+            abort_tx: Arc::new(Mutex::new(Some(tx))),
+            abort_rx: rx,
+        }
     }
 }
 
@@ -128,27 +132,39 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
     let progress = if options.progress && graph.settings.progress {
         let bar = indicatif::ProgressBar::new(0);
         bar.set_style(
-            indicatif::ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} items, {per_sec}, eta {eta}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            indicatif::ProgressStyle::with_template(
+                "{spinner} {msg} [{bar:30}] {pos}/{len} items, {per_sec}, eta {eta}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
         );
         bar.set_message(graph.name.clone());
         bar
     } else {
         indicatif::ProgressBar::hidden()
     };
-    let shared = Arc::new(Shared { stop: stop.clone(), failures: Mutex::new(Vec::new()), progress });
+    let shared = Arc::new(Shared {
+        stop: stop.clone(),
+        failures: Mutex::new(Vec::new()),
+        progress,
+    });
 
     // Channels, one per edge.
     let node_count = graph.nodes.len();
-    let mut senders: Vec<Vec<Vec<EdgeSender>>> =
-        graph.nodes.iter().map(|n| n.kind.outputs.iter().map(|_| Vec::new()).collect()).collect();
+    let mut senders: Vec<Vec<Vec<EdgeSender>>> = graph
+        .nodes
+        .iter()
+        .map(|n| n.kind.outputs.iter().map(|_| Vec::new()).collect())
+        .collect();
     let mut receivers: Vec<Vec<(usize, Receiver<Message>)>> = vec![Vec::new(); node_count];
     let mut edge_counters = Vec::new();
     for edge in &graph.edges {
         let (tx, rx) = bounded::<Message>(edge.capacity);
         let counters = Arc::new(EdgeCounters::default());
-        let evict = matches!(edge.policy, crate::policy::EdgePolicy::DropOldest | crate::policy::EdgePolicy::Latest)
-            .then(|| rx.clone());
+        let evict = matches!(
+            edge.policy,
+            crate::policy::EdgePolicy::DropOldest | crate::policy::EdgePolicy::Latest
+        )
+        .then(|| rx.clone());
         senders[edge.from_node][edge.from_port].push(EdgeSender {
             tx,
             evict,
@@ -160,22 +176,47 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
     }
 
     let node_ids: Vec<String> = graph.nodes.iter().map(|n| n.id.clone()).collect();
-    let edge_labels: Vec<(String, String)> = graph.edges.iter().map(|e| graph.edge_label(e)).collect();
+    let edge_labels: Vec<(String, String)> =
+        graph.edges.iter().map(|e| graph.edge_label(e)).collect();
     let inbound: Vec<Vec<usize>> = (0..node_count)
-        .map(|node| graph.edges.iter().enumerate().filter(|(_, e)| e.to_node == node).map(|(i, _)| i).collect())
+        .map(|node| {
+            graph
+                .edges
+                .iter()
+                .enumerate()
+                .filter(|(_, e)| e.to_node == node)
+                .map(|(i, _)| i)
+                .collect()
+        })
         .collect();
 
     // One thread per node.
     let (done_tx, done_rx) = crossbeam_channel::unbounded::<(usize, NodeReport)>();
     let mut pending: Vec<Option<String>> = Vec::with_capacity(node_count);
     let mut startup_error = None;
-    for (index, ((resolved, outputs), inputs)) in graph.nodes.into_iter().zip(senders).zip(receivers).enumerate() {
-        let output_ports: Arc<[&'static str]> = resolved.kind.outputs.iter().map(|p| p.name).collect();
-        let input_ports: Arc<[&'static str]> = resolved.kind.inputs.iter().map(|p| p.name).collect();
+    for (index, ((resolved, outputs), inputs)) in graph
+        .nodes
+        .into_iter()
+        .zip(senders)
+        .zip(receivers)
+        .enumerate()
+    {
+        let output_ports: Arc<[&'static str]> =
+            resolved.kind.outputs.iter().map(|p| p.name).collect();
+        let input_ports: Arc<[&'static str]> =
+            resolved.kind.inputs.iter().map(|p| p.name).collect();
         let is_source = matches!(resolved.node, Node::Source(_));
         let thread = NodeThread {
-            report: NodeReport::new(&resolved.id, resolved.kind.name, resolved.kind.role.as_str()),
-            who: Who { id: resolved.id.clone(), kind: resolved.kind.name, on_error: resolved.on_error },
+            report: NodeReport::new(
+                &resolved.id,
+                resolved.kind.name,
+                resolved.kind.role.as_str(),
+            ),
+            who: Who {
+                id: resolved.id.clone(),
+                kind: resolved.kind.name,
+                on_error: resolved.on_error,
+            },
             pacing: resolved.pacing,
             sync: resolved.sync,
             align_tolerance_us: resolved.align_tolerance_us,
@@ -187,16 +228,21 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
         let node = resolved.node;
         let shared = Arc::clone(&shared);
         let done = done_tx.clone();
-        let spawned = std::thread::Builder::new().name(format!("node:{}", resolved.id)).spawn(move || {
-            let span = info_span!("node", id = %thread.who.id, kind = thread.who.kind);
-            let _entered = span.enter();
-            let report = run_node(thread, node, &shared);
-            let _ = done.send((index, report));
-        });
+        let spawned = std::thread::Builder::new()
+            .name(format!("node:{}", resolved.id))
+            .spawn(move || {
+                let span = info_span!("node", id = %thread.who.id, kind = thread.who.kind);
+                let _entered = span.enter();
+                let report = run_node(thread, node, &shared);
+                let _ = done.send((index, report));
+            });
         match spawned {
             Ok(_) => pending.push(Some(resolved.id)),
             Err(error) => {
-                startup_error = Some(RunError::Startup(format!("spawning node '{}': {error}", resolved.id)));
+                startup_error = Some(RunError::Startup(format!(
+                    "spawning node '{}': {error}",
+                    resolved.id
+                )));
                 stop.abort();
                 pending.push(None);
             }
@@ -255,18 +301,28 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
         }
     }
 
-    let mut failures = shared.failures.lock().map(|mut f| std::mem::take(&mut *f)).unwrap_or_default();
+    let mut failures = shared
+        .failures
+        .lock()
+        .map(|mut f| std::mem::take(&mut *f))
+        .unwrap_or_default();
     let error = if let Some(error) = startup_error {
         Some(error)
     } else if !failures.is_empty() {
         Some(failures.remove(0))
     } else if !hung.is_empty() {
-        Some(RunError::Hung { nodes: hung.clone(), grace_ms: graph.settings.shutdown_grace_ms })
+        Some(RunError::Hung {
+            nodes: hung.clone(),
+            grace_ms: graph.settings.shutdown_grace_ms,
+        })
     } else {
         None
     };
     if !hung.is_empty() {
-        warn!("nodes still running after {} ms: {hung:?}", graph.settings.shutdown_grace_ms);
+        warn!(
+            "nodes still running after {} ms: {hung:?}",
+            graph.settings.shutdown_grace_ms
+        );
     }
     let outcome = match &error {
         Some(error) => format!("failed: {error}"),
@@ -274,7 +330,13 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
         None => "completed".to_string(),
     };
     RunOutcome {
-        report: RunReport { graph: graph.name, wall_seconds: started.elapsed().as_secs_f64(), outcome, nodes, edges },
+        report: RunReport {
+            graph: graph.name,
+            wall_seconds: started.elapsed().as_secs_f64(),
+            outcome,
+            nodes,
+            edges,
+        },
         error,
     }
 }
@@ -301,7 +363,11 @@ fn guarded<T>(who: &Who, shared: &Shared, call: impl FnOnce() -> Result<T, NodeE
                 NodeError::Item(cause) => format!("bad input item: {cause}"),
                 other => other.to_string(),
             };
-            shared.fail(RunError::NodeFailed { node: who.id.clone(), kind: who.kind.to_string(), cause });
+            shared.fail(RunError::NodeFailed {
+                node: who.id.clone(),
+                kind: who.kind.to_string(),
+                cause,
+            });
             Step::Stop
         }
         Err(payload) => {
@@ -310,7 +376,11 @@ fn guarded<T>(who: &Who, shared: &Shared, call: impl FnOnce() -> Result<T, NodeE
                 .map(|s| s.to_string())
                 .or_else(|| payload.downcast_ref::<String>().cloned())
                 .unwrap_or_else(|| "unknown panic payload".into());
-            shared.fail(RunError::NodePanicked { node: who.id.clone(), kind: who.kind.to_string(), cause });
+            shared.fail(RunError::NodePanicked {
+                node: who.id.clone(),
+                kind: who.kind.to_string(),
+                cause,
+            });
             Step::Stop
         }
     }
@@ -340,7 +410,10 @@ fn run_source(mut thread: NodeThread, mut source: Box<dyn Source>, shared: &Shar
         let before = Clock::now();
         let produced = guarded(&thread.who, shared, || source.next(&mut thread.outputs));
         let mut released = Clock::now();
-        thread.report.latency.record(released.saturating_duration_since(before));
+        thread
+            .report
+            .latency
+            .record(released.saturating_duration_since(before));
         let time_of_validity = match produced {
             Step::Ok(Some(tov)) => tov,
             Step::Ok(None) => break,
@@ -359,7 +432,9 @@ fn run_source(mut thread: NodeThread, mut source: Box<dyn Source>, shared: &Shar
             let wait = deadline.saturating_duration_since(Instant::now());
             if !wait.is_zero() {
                 // Sleep, but wake at once on abort.
-                if let Ok(()) | Err(RecvTimeoutError::Disconnected) = abort.recv_timeout(wait).map(|_| ()) {
+                if let Ok(()) | Err(RecvTimeoutError::Disconnected) =
+                    abort.recv_timeout(wait).map(|_| ())
+                {
                     if shared.stop.is_aborted() {
                         break;
                     }
@@ -397,26 +472,33 @@ fn run_consumer(mut thread: NodeThread, mut consumer: Consumer, shared: &Shared)
     let spin = thread.idle_spin;
 
     // One input group, reused for every call: no allocation per message.
-    let mut inputs = Inputs { ports: Arc::clone(&thread.input_ports), messages: vec![None; port_count] };
-    let mut deliver = |thread: &mut NodeThread, consumer: &mut Consumer, port: usize, message: Message| -> bool {
-        let arrived = Clock::now();
-        thread.report.items_in += 1;
-        thread.report.age.record(arrived.saturating_duration_since(message.header().entered_graph));
-        if !aligned {
-            inputs.messages[port] = Some(message);
-            let keep_going = call(thread, consumer, &mut inputs, shared, arrived);
-            inputs.messages[port] = None;
-            return keep_going;
-        }
-        aligner.push(port, message);
-        while let Some(group) = aligner.pop_group() {
-            inputs.messages = group;
-            if !call(thread, consumer, &mut inputs, shared, Clock::now()) {
-                return false;
-            }
-        }
-        true
+    let mut inputs = Inputs {
+        ports: Arc::clone(&thread.input_ports),
+        messages: vec![None; port_count],
     };
+    let mut deliver =
+        |thread: &mut NodeThread, consumer: &mut Consumer, port: usize, message: Message| -> bool {
+            let arrived = Clock::now();
+            thread.report.items_in += 1;
+            thread
+                .report
+                .age
+                .record(arrived.saturating_duration_since(message.header().entered_graph));
+            if !aligned {
+                inputs.messages[port] = Some(message);
+                let keep_going = call(thread, consumer, &mut inputs, shared, arrived);
+                inputs.messages[port] = None;
+                return keep_going;
+            }
+            aligner.push(port, message);
+            while let Some(group) = aligner.pop_group() {
+                inputs.messages = group;
+                if !call(thread, consumer, &mut inputs, shared, Clock::now()) {
+                    return false;
+                }
+            }
+            true
+        };
 
     if receivers.len() == 1 {
         // The common chain case: one input. It parks on a plain `recv`, the cheapest wake-up;
@@ -457,7 +539,9 @@ fn run_consumer(mut thread: NodeThread, mut consumer: Consumer, shared: &Shared)
                 let _ = operation.recv(&abort);
                 return thread.report;
             }
-            let Some(edge) = slots.get(index).copied().flatten() else { break };
+            let Some(edge) = slots.get(index).copied().flatten() else {
+                break;
+            };
             let (port, rx) = &receivers[edge];
             match operation.recv(rx) {
                 Ok(message) => {
@@ -518,7 +602,13 @@ fn try_recv_spinning(rx: &Receiver<Message>, spin: Duration) -> Result<Message, 
 }
 
 /// One call of `process`/`consume`; false when the node must stop.
-fn call(thread: &mut NodeThread, consumer: &mut Consumer, inputs: &mut Inputs, shared: &Shared, started: Clock) -> bool {
+fn call(
+    thread: &mut NodeThread,
+    consumer: &mut Consumer,
+    inputs: &mut Inputs,
+    shared: &Shared,
+    started: Clock,
+) -> bool {
     if let Some(header) = inputs.header() {
         thread.outputs.inherit(*header);
     }
@@ -529,7 +619,10 @@ fn call(thread: &mut NodeThread, consumer: &mut Consumer, inputs: &mut Inputs, s
         Consumer::Task(task) => guarded(&thread.who, shared, || task.process(inputs, outputs)),
         Consumer::Sink(sink) => guarded(&thread.who, shared, || sink.consume(inputs)),
     };
-    thread.report.latency.record(Clock::now().saturating_duration_since(started));
+    thread
+        .report
+        .latency
+        .record(Clock::now().saturating_duration_since(started));
     thread.report.items_out += thread.outputs.sent() - before_sent;
     match step {
         Step::Ok(()) => true,

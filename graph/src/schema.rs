@@ -55,7 +55,13 @@ pub struct Settings {
 
 impl Default for Settings {
     fn default() -> Self {
-        Self { default_capacity: 16, default_policy: EdgePolicy::Block, shutdown_grace_ms: 5000, progress: true, idle_spin_us: 0 }
+        Self {
+            default_capacity: 16,
+            default_policy: EdgePolicy::Block,
+            shutdown_grace_ms: 5000,
+            progress: true,
+            idle_spin_us: 0,
+        }
     }
 }
 

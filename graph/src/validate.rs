@@ -56,22 +56,46 @@ impl ResolvedGraph {
     pub fn describe(&self) -> String {
         use std::fmt::Write as _;
         let mut out = String::new();
-        let _ = writeln!(out, "graph '{}' ({}): {} nodes, {} edges", self.name, self.file, self.nodes.len(), self.edges.len());
+        let _ = writeln!(
+            out,
+            "graph '{}' ({}): {} nodes, {} edges",
+            self.name,
+            self.file,
+            self.nodes.len(),
+            self.edges.len()
+        );
         for node in &self.nodes {
-            let _ = writeln!(out, "  node {} [{} {}]", node.id, node.kind.role.as_str(), node.kind.name);
+            let _ = writeln!(
+                out,
+                "  node {} [{} {}]",
+                node.id,
+                node.kind.role.as_str(),
+                node.kind.name
+            );
             let _ = writeln!(out, "    params: {}", node.params);
             if node.kind.role == Role::Source {
                 let _ = writeln!(out, "    pacing: {}", node.pacing.describe());
             }
             if node.kind.inputs.len() > 1 {
-                let _ = writeln!(out, "    sync: {:?}, align_tolerance_us: {}", node.sync, node.align_tolerance_us);
+                let _ = writeln!(
+                    out,
+                    "    sync: {:?}, align_tolerance_us: {}",
+                    node.sync, node.align_tolerance_us
+                );
             }
             let _ = writeln!(out, "    on_error: {:?}", node.on_error);
         }
         for edge in &self.edges {
             let (from, to) = self.edge_label(edge);
-            let ty = self.nodes[edge.from_node].kind.outputs[edge.from_port].ty.name();
-            let _ = writeln!(out, "  edge {from} -> {to} [{ty}, capacity {}, {}]", edge.capacity, edge.policy.as_str());
+            let ty = self.nodes[edge.from_node].kind.outputs[edge.from_port]
+                .ty
+                .name();
+            let _ = writeln!(
+                out,
+                "  edge {from} -> {to} [{ty}, capacity {}, {}]",
+                edge.capacity,
+                edge.policy.as_str()
+            );
         }
         out
     }
@@ -90,8 +114,12 @@ pub struct Override {
 impl Override {
     /// Parses `node.key=value`; the value is read as YAML (`12`, `true`, `[1, 2]`, `text`).
     pub fn parse(text: &str) -> Result<Self, String> {
-        let (target, value) = text.split_once('=').ok_or_else(|| format!("'{text}' is not node.key=value"))?;
-        let (node, key) = target.split_once('.').ok_or_else(|| format!("'{target}' is not node.key"))?;
+        let (target, value) = text
+            .split_once('=')
+            .ok_or_else(|| format!("'{text}' is not node.key=value"))?;
+        let (node, key) = target
+            .split_once('.')
+            .ok_or_else(|| format!("'{target}' is not node.key"))?;
         if node.is_empty() || key.is_empty() {
             return Err(format!("'{target}' is not node.key"));
         }
@@ -101,7 +129,11 @@ impl Override {
             serde_saphyr::from_str::<serde_json::Value>(value)
                 .unwrap_or_else(|_| serde_json::Value::String(value.to_string()))
         };
-        Ok(Self { node: node.to_string(), key: key.to_string(), value })
+        Ok(Self {
+            node: node.to_string(),
+            key: key.to_string(),
+            value,
+        })
     }
 }
 
@@ -114,8 +146,16 @@ impl Finder<'_> {
     fn at(&mut self, location: Option<Location>, message: impl Into<String>, hint: Option<String>) {
         let position = location
             .filter(|l| *l != Location::UNKNOWN)
-            .map(|l| Position { line: l.line(), column: l.column() });
-        self.found.push(Diagnostic { file: self.file.to_string(), position, message: message.into(), hint });
+            .map(|l| Position {
+                line: l.line(),
+                column: l.column(),
+            });
+        self.found.push(Diagnostic {
+            file: self.file.to_string(),
+            position,
+            message: message.into(),
+            hint,
+        });
     }
 }
 
@@ -124,8 +164,16 @@ fn loc<T>(spanned: &Spanned<T>) -> Option<Location> {
 }
 
 /// Parses and validates a graph file's text. `file` names it in diagnostics.
-pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Override]) -> Result<ResolvedGraph, Diagnostics> {
-    let mut finder = Finder { file, found: Vec::new() };
+pub fn resolve(
+    text: &str,
+    file: &str,
+    registry: &Registry,
+    overrides: &[Override],
+) -> Result<ResolvedGraph, Diagnostics> {
+    let mut finder = Finder {
+        file,
+        found: Vec::new(),
+    };
     let parsed: GraphFile = match serde_saphyr::from_str(text) {
         Ok(parsed) => parsed,
         Err(error) => {
@@ -145,10 +193,18 @@ pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Overrid
         let decl = &decl.value;
         let id = decl.id.value.clone();
         if id.is_empty() || id.contains('.') {
-            finder.at(loc(&decl.id), format!("node id '{id}' is not valid"), Some("ids are non-empty and have no '.'".into()));
+            finder.at(
+                loc(&decl.id),
+                format!("node id '{id}' is not valid"),
+                Some("ids are non-empty and have no '.'".into()),
+            );
         }
         if ids.contains_key(&id) {
-            finder.at(loc(&decl.id), format!("duplicate node id '{id}'"), Some("every node needs its own id".into()));
+            finder.at(
+                loc(&decl.id),
+                format!("duplicate node id '{id}'"),
+                Some("every node needs its own id".into()),
+            );
             continue;
         }
         ids.insert(id.clone(), node_ids.len());
@@ -156,10 +212,20 @@ pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Overrid
 
         let Some(kind) = registry.get(&decl.kind.value) else {
             let hint = match closest(&decl.kind.value, registry.names()) {
-                Some(near) => format!("did you mean '{near}'? known kinds: {}", registry.names().collect::<Vec<_>>().join(", ")),
-                None => format!("known kinds: {}", registry.names().collect::<Vec<_>>().join(", ")),
+                Some(near) => format!(
+                    "did you mean '{near}'? known kinds: {}",
+                    registry.names().collect::<Vec<_>>().join(", ")
+                ),
+                None => format!(
+                    "known kinds: {}",
+                    registry.names().collect::<Vec<_>>().join(", ")
+                ),
             };
-            finder.at(loc(&decl.kind), format!("unknown node kind '{}' for node '{id}'", decl.kind.value), Some(hint));
+            finder.at(
+                loc(&decl.kind),
+                format!("unknown node kind '{}' for node '{id}'", decl.kind.value),
+                Some(hint),
+            );
             nodes.push(None);
             continue;
         };
@@ -177,28 +243,57 @@ pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Overrid
         let mut on_error = decl.on_error.as_ref().map(|o| o.value).unwrap_or_default();
         for over in overrides.iter().filter(|o| o.node == id) {
             match over.key.as_str() {
-                "pacing.speed" => pacing_decl = crate::schema::PacingDecl { speed: over.value.as_f64(), rate_hz: None },
-                "pacing.rate_hz" => pacing_decl = crate::schema::PacingDecl { speed: None, rate_hz: over.value.as_f64() },
+                "pacing.speed" => {
+                    pacing_decl = crate::schema::PacingDecl {
+                        speed: over.value.as_f64(),
+                        rate_hz: None,
+                    }
+                }
+                "pacing.rate_hz" => {
+                    pacing_decl = crate::schema::PacingDecl {
+                        speed: None,
+                        rate_hz: over.value.as_f64(),
+                    }
+                }
                 "on_error" => match serde_json::from_value::<OnError>(over.value.clone()) {
                     Ok(value) => on_error = value,
-                    Err(_) => finder.at(None, format!("--set {id}.on_error: '{}' is not accepted", over.value), Some("accepted: stop, skip".into())),
+                    Err(_) => finder.at(
+                        None,
+                        format!("--set {id}.on_error: '{}' is not accepted", over.value),
+                        Some("accepted: stop, skip".into()),
+                    ),
                 },
                 key => set_path(&mut params, key, over.value.clone()),
             }
         }
 
-        let params_location = decl.params.as_ref().map(|p| p.referenced).or(Some(decl.kind.referenced));
+        let params_location = decl
+            .params
+            .as_ref()
+            .map(|p| p.referenced)
+            .or(Some(decl.kind.referenced));
         let params_value = serde_json::Value::Object(params);
         let built = match kind.build(&params_value) {
             Ok(built) => Some(built),
             Err(error) => {
-                let top = error.field.as_deref().map(|f| f.split('.').next().unwrap_or(f).to_string());
-                let location = top.as_ref().and_then(|f| param_locations.get(f).copied()).or(params_location);
+                let top = error
+                    .field
+                    .as_deref()
+                    .map(|f| f.split('.').next().unwrap_or(f).to_string());
+                let location = top
+                    .as_ref()
+                    .and_then(|f| param_locations.get(f).copied())
+                    .or(params_location);
                 let field = error.field.clone().unwrap_or_else(|| "params".into());
                 finder.at(
                     location,
-                    format!("bad parameter '{field}' of node '{id}' ({}): {}", kind.name, error.message),
-                    error.accepted.map(|accepted| format!("accepted: {accepted}")),
+                    format!(
+                        "bad parameter '{field}' of node '{id}' ({}): {}",
+                        kind.name, error.message
+                    ),
+                    error
+                        .accepted
+                        .map(|accepted| format!("accepted: {accepted}")),
                 );
                 None
             }
@@ -212,28 +307,57 @@ pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Overrid
             }
         };
         if decl.pacing.is_some() && kind.role != Role::Source {
-            finder.at(decl.pacing.as_ref().and_then(loc), format!("node '{id}' is a {}, only sources are paced", kind.role.as_str()), None);
+            finder.at(
+                decl.pacing.as_ref().and_then(loc),
+                format!(
+                    "node '{id}' is a {}, only sources are paced",
+                    kind.role.as_str()
+                ),
+                None,
+            );
         }
-        let tolerance = decl.align_tolerance_us.as_ref().map(|t| t.value).unwrap_or(0);
+        let tolerance = decl
+            .align_tolerance_us
+            .as_ref()
+            .map(|t| t.value)
+            .unwrap_or(0);
         if tolerance < 0 {
-            finder.at(decl.align_tolerance_us.as_ref().and_then(loc), format!("node '{id}': align_tolerance_us must be >= 0, got {tolerance}"), None);
+            finder.at(
+                decl.align_tolerance_us.as_ref().and_then(loc),
+                format!("node '{id}': align_tolerance_us must be >= 0, got {tolerance}"),
+                None,
+            );
         }
 
-        nodes.push(built.map(|built| ResolvedNode {
-            id: id.clone(),
-            kind: kind.clone(),
-            node: built.node,
-            params: built.resolved_params,
-            on_error,
-            pacing,
-            sync: decl.sync.as_ref().map(|s| s.value).unwrap_or(kind.default_sync),
-            align_tolerance_us: tolerance.max(0),
+        nodes.push(built.map(|built| {
+            ResolvedNode {
+                id: id.clone(),
+                kind: kind.clone(),
+                node: built.node,
+                params: built.resolved_params,
+                on_error,
+                pacing,
+                sync: decl
+                    .sync
+                    .as_ref()
+                    .map(|s| s.value)
+                    .unwrap_or(kind.default_sync),
+                align_tolerance_us: tolerance.max(0),
+            }
         }));
     }
     for over in overrides {
         if !ids.contains_key(&over.node) {
-            let hint = closest(&over.node, node_ids.iter().map(String::as_str)).map(|near| format!("did you mean '{near}'?"));
-            finder.at(None, format!("--set names node '{}', which the graph does not have", over.node), hint);
+            let hint = closest(&over.node, node_ids.iter().map(String::as_str))
+                .map(|near| format!("did you mean '{near}'?"));
+            finder.at(
+                None,
+                format!(
+                    "--set names node '{}', which the graph does not have",
+                    over.node
+                ),
+                hint,
+            );
         }
     }
 
@@ -247,57 +371,122 @@ pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Overrid
     // `kinds` is indexed by declaration order; map node ids to it, skipping duplicates.
     let mut decl_index: HashMap<&str, usize> = HashMap::new();
     for (index, decl) in parsed.nodes.iter().enumerate() {
-        decl_index.entry(decl.value.id.value.as_str()).or_insert(index);
+        decl_index
+            .entry(decl.value.id.value.as_str())
+            .or_insert(index);
     }
     // Inputs that some edge names, valid or not: a broken edge is one problem, not two.
     let mut connected: Vec<Vec<bool>> = node_ids
         .iter()
-        .map(|id| kinds[decl_index[id.as_str()]].as_ref().map(|k| vec![false; k.inputs.len()]).unwrap_or_default())
+        .map(|id| {
+            kinds[decl_index[id.as_str()]]
+                .as_ref()
+                .map(|k| vec![false; k.inputs.len()])
+                .unwrap_or_default()
+        })
         .collect();
     for edge in &parsed.edges {
         let edge = &edge.value;
         let from = endpoint(&mut finder, &edge.from, &ids, &node_ids);
         let to = endpoint(&mut finder, &edge.to, &ids, &node_ids);
-        let (Some((from_node, from_port_name)), Some((to_node, to_port_name))) = (from, to) else { continue };
+        let (Some((from_node, from_port_name)), Some((to_node, to_port_name))) = (from, to) else {
+            continue;
+        };
         let from_kind = kinds[decl_index[node_ids[from_node].as_str()]].as_ref();
         let to_kind = kinds[decl_index[node_ids[to_node].as_str()]].as_ref();
-        let (Some(from_kind), Some(to_kind)) = (from_kind, to_kind) else { continue };
+        let (Some(from_kind), Some(to_kind)) = (from_kind, to_kind) else {
+            continue;
+        };
         let from_port = from_kind.output(&from_port_name);
         if from_port.is_none() {
-            finder.at(loc(&edge.from), format!("node '{}' ({}) has no output port '{from_port_name}'", node_ids[from_node], from_kind.name), Some(port_list("outputs", &from_kind.outputs)));
+            finder.at(
+                loc(&edge.from),
+                format!(
+                    "node '{}' ({}) has no output port '{from_port_name}'",
+                    node_ids[from_node], from_kind.name
+                ),
+                Some(port_list("outputs", &from_kind.outputs)),
+            );
         }
         let to_port = to_kind.input(&to_port_name);
         if let Some((index, _)) = to_port {
             connected[to_node][index] = true;
         }
         if to_port.is_none() {
-            finder.at(loc(&edge.to), format!("node '{}' ({}) has no input port '{to_port_name}'", node_ids[to_node], to_kind.name), Some(port_list("inputs", &to_kind.inputs)));
+            finder.at(
+                loc(&edge.to),
+                format!(
+                    "node '{}' ({}) has no input port '{to_port_name}'",
+                    node_ids[to_node], to_kind.name
+                ),
+                Some(port_list("inputs", &to_kind.inputs)),
+            );
         }
-        let (Some((from_port, from_spec)), Some((to_port, to_spec))) = (from_port, to_port) else { continue };
+        let (Some((from_port, from_spec)), Some((to_port, to_spec))) = (from_port, to_port) else {
+            continue;
+        };
         if from_spec.ty != to_spec.ty {
             finder.at(
                 loc(&edge.to),
-                format!("port type mismatch: {} carries {} but {} takes {}", edge.from.value, from_spec.ty.name(), edge.to.value, to_spec.ty.name()),
+                format!(
+                    "port type mismatch: {} carries {} but {} takes {}",
+                    edge.from.value,
+                    from_spec.ty.name(),
+                    edge.to.value,
+                    to_spec.ty.name()
+                ),
                 Some("connect ports that carry the same message type".into()),
             );
             continue;
         }
-        let capacity_requested = edge.capacity.as_ref().map(|c| c.value).unwrap_or(parsed.settings.default_capacity);
+        let capacity_requested = edge
+            .capacity
+            .as_ref()
+            .map(|c| c.value)
+            .unwrap_or(parsed.settings.default_capacity);
         if capacity_requested == 0 {
-            finder.at(edge.capacity.as_ref().and_then(loc), "edge capacity must be at least 1", None);
+            finder.at(
+                edge.capacity.as_ref().and_then(loc),
+                "edge capacity must be at least 1",
+                None,
+            );
         }
-        let policy = edge.policy.as_ref().map(|p| p.value).unwrap_or(parsed.settings.default_policy);
-        edges.push(ResolvedEdge { from_node, from_port, to_node, to_port, capacity: policy.effective_capacity(capacity_requested), policy });
+        let policy = edge
+            .policy
+            .as_ref()
+            .map(|p| p.value)
+            .unwrap_or(parsed.settings.default_policy);
+        edges.push(ResolvedEdge {
+            from_node,
+            from_port,
+            to_node,
+            to_port,
+            capacity: policy.effective_capacity(capacity_requested),
+            policy,
+        });
     }
 
     // Required inputs must be connected.
     for (index, id) in node_ids.iter().enumerate() {
         let declared = decl_index[id.as_str()];
-        let Some(kind) = kinds[declared].as_ref() else { continue };
+        let Some(kind) = kinds[declared].as_ref() else {
+            continue;
+        };
         for (port_index, port) in kind.inputs.iter().enumerate() {
             if port.required && !connected[index][port_index] {
                 let location = parsed.nodes.get(declared).map(|d| d.value.id.referenced);
-                finder.at(location, format!("required input '{id}.{}' ({}) is not connected", port.name, port.ty.name()), Some(format!("add an edge `{{from: <node>.<port>, to: {id}.{}}}`", port.name)));
+                finder.at(
+                    location,
+                    format!(
+                        "required input '{id}.{}' ({}) is not connected",
+                        port.name,
+                        port.ty.name()
+                    ),
+                    Some(format!(
+                        "add an edge `{{from: <node>.<port>, to: {id}.{}}}`",
+                        port.name
+                    )),
+                );
             }
         }
     }
@@ -305,7 +494,10 @@ pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Overrid
     // Cycles: dataflow graphs here are acyclic, so drain-on-end terminates.
     if let Some(cycle) = find_cycle(node_ids.len(), &edges) {
         let names: Vec<&str> = cycle.iter().map(|&i| node_ids[i].as_str()).collect();
-        let first = parsed.nodes.get(decl_index[names[0]]).map(|d| d.value.id.referenced);
+        let first = parsed
+            .nodes
+            .get(decl_index[names[0]])
+            .map(|d| d.value.id.referenced);
         finder.at(first, format!("cycle: {} -> {}", names.join(" -> "), names[0]), Some("graphs must be acyclic; keep state inside a node (e.g. a history buffer) instead of feeding outputs back".into()));
     }
 
@@ -325,9 +517,18 @@ pub fn resolve(text: &str, file: &str, registry: &Registry, overrides: &[Overrid
     })
 }
 
-fn endpoint(finder: &mut Finder, spanned: &Spanned<String>, ids: &HashMap<String, usize>, node_ids: &[String]) -> Option<(usize, String)> {
+fn endpoint(
+    finder: &mut Finder,
+    spanned: &Spanned<String>,
+    ids: &HashMap<String, usize>,
+    node_ids: &[String],
+) -> Option<(usize, String)> {
     let Some((node, port)) = spanned.value.split_once('.') else {
-        finder.at(loc(spanned), format!("edge endpoint '{}' is not node.port", spanned.value), Some("write endpoints as `node_id.port_name`".into()));
+        finder.at(
+            loc(spanned),
+            format!("edge endpoint '{}' is not node.port", spanned.value),
+            Some("write endpoints as `node_id.port_name`".into()),
+        );
         return None;
     };
     match ids.get(node) {
@@ -337,7 +538,11 @@ fn endpoint(finder: &mut Finder, spanned: &Spanned<String>, ids: &HashMap<String
                 Some(near) => format!("did you mean '{near}'?"),
                 None => format!("nodes: {}", node_ids.join(", ")),
             };
-            finder.at(loc(spanned), format!("edge names unknown node '{node}'"), Some(hint));
+            finder.at(
+                loc(spanned),
+                format!("edge names unknown node '{node}'"),
+                Some(hint),
+            );
             None
         }
     }
@@ -347,17 +552,26 @@ fn port_list(what: &str, ports: &[crate::port::PortSpec]) -> String {
     if ports.is_empty() {
         return format!("it has no {what}");
     }
-    let names: Vec<String> = ports.iter().map(|p| format!("{} ({})", p.name, p.ty.name())).collect();
+    let names: Vec<String> = ports
+        .iter()
+        .map(|p| format!("{} ({})", p.name, p.ty.name()))
+        .collect();
     format!("{what}: {}", names.join(", "))
 }
 
-fn set_path(params: &mut serde_json::Map<String, serde_json::Value>, path: &str, value: serde_json::Value) {
+fn set_path(
+    params: &mut serde_json::Map<String, serde_json::Value>,
+    path: &str,
+    value: serde_json::Value,
+) {
     match path.split_once('.') {
         None => {
             params.insert(path.to_string(), value);
         }
         Some((head, rest)) => {
-            let entry = params.entry(head.to_string()).or_insert_with(|| serde_json::Value::Object(Default::default()));
+            let entry = params
+                .entry(head.to_string())
+                .or_insert_with(|| serde_json::Value::Object(Default::default()));
             if !entry.is_object() {
                 *entry = serde_json::Value::Object(Default::default());
             }
@@ -381,7 +595,12 @@ fn find_cycle(count: usize, edges: &[ResolvedEdge]) -> Option<Vec<usize>> {
     // 0 = unvisited, 1 = on the stack, 2 = done.
     let mut state = vec![0u8; count];
     let mut stack: Vec<usize> = Vec::new();
-    fn visit(node: usize, next: &[Vec<usize>], state: &mut [u8], stack: &mut Vec<usize>) -> Option<Vec<usize>> {
+    fn visit(
+        node: usize,
+        next: &[Vec<usize>],
+        state: &mut [u8],
+        stack: &mut Vec<usize>,
+    ) -> Option<Vec<usize>> {
         state[node] = 1;
         stack.push(node);
         for &succ in &next[node] {

@@ -29,7 +29,11 @@ edges:
     let sink = outcome.report.node("slow").unwrap();
     assert_eq!(sink.items_in, 300);
     assert_eq!(sink.drops, 0);
-    assert!(sink.max_queue_depth <= 5, "queue depth {}", sink.max_queue_depth);
+    assert!(
+        sink.max_queue_depth <= 5,
+        "queue depth {}",
+        sink.max_queue_depth
+    );
 }
 
 #[test]
@@ -49,7 +53,10 @@ edges:
     assert!(sink.drops > 0, "an overloaded edge must drop");
     assert_eq!(delivered.len() as u64 + sink.drops, 2000);
     assert_eq!(outcome.report.edges[0].dropped, sink.drops);
-    assert!(delivered.windows(2).all(|w| w[0] < w[1]), "drops keep order");
+    assert!(
+        delivered.windows(2).all(|w| w[0] < w[1]),
+        "drops keep order"
+    );
     // The newest item always survives: it is never evicted by a later one.
     assert_eq!(delivered.last(), Some(&1999));
 }
@@ -67,7 +74,10 @@ edges:
     );
     let delivered = recorded("latest_slow");
     assert_eq!(outcome.report.edges[0].capacity, 1);
-    assert_eq!(delivered.len() as u64 + outcome.report.node("slow").unwrap().drops, 500);
+    assert_eq!(
+        delivered.len() as u64 + outcome.report.node("slow").unwrap().drops,
+        500
+    );
     assert_eq!(delivered.last(), Some(&499));
 }
 
@@ -141,7 +151,11 @@ edges:
     );
     let elapsed = started.elapsed();
     assert!(elapsed < Duration::from_secs(5), "run took {elapsed:?}");
-    assert!(matches!(outcome.error, Some(RunError::NodeFailed { ref node, .. }) if node == "picky"), "{:?}", outcome.error);
+    assert!(
+        matches!(outcome.error, Some(RunError::NodeFailed { ref node, .. }) if node == "picky"),
+        "{:?}",
+        outcome.error
+    );
 }
 
 #[test]
@@ -204,7 +218,10 @@ edges:
 "#,
     );
     assert!(outcome.error.is_none());
-    assert_eq!(recorded("align_out"), (0..19).map(|v| v * 1000 + v).collect::<Vec<u64>>());
+    assert_eq!(
+        recorded("align_out"),
+        (0..19).map(|v| v * 1000 + v).collect::<Vec<u64>>()
+    );
     assert_eq!(outcome.report.node("join").unwrap().unaligned, 1);
 }
 
@@ -223,7 +240,10 @@ edges:
     );
     assert!(outcome.error.is_none());
     assert_eq!(outcome.report.node("picky").unwrap().skips, 10);
-    assert_eq!(recorded("skip_out"), (0..30).filter(|v| v % 3 != 0).collect::<Vec<u64>>());
+    assert_eq!(
+        recorded("skip_out"),
+        (0..30).filter(|v| v % 3 != 0).collect::<Vec<u64>>()
+    );
 }
 
 #[test]
@@ -239,7 +259,9 @@ edges:
   - {from: picky.out, to: out.in}
 "#,
     );
-    assert!(matches!(outcome.error, Some(RunError::NodeFailed { ref cause, .. }) if cause.contains("item 0 is bad")));
+    assert!(
+        matches!(outcome.error, Some(RunError::NodeFailed { ref cause, .. }) if cause.contains("item 0 is bad"))
+    );
 }
 
 #[test]
@@ -265,12 +287,22 @@ edges:
         std::thread::sleep(Duration::from_millis(150));
         trigger.drain();
     });
-    let outcome = run(graph, RunOptions { stop, progress: false });
+    let outcome = run(
+        graph,
+        RunOptions {
+            stop,
+            progress: false,
+        },
+    );
     assert!(outcome.error.is_none());
     assert_eq!(outcome.report.outcome, "drained");
     let produced = outcome.report.node("src").unwrap().items_out;
     assert!(produced > 10);
-    assert_eq!(recorded("drain_out").len() as u64, produced, "every produced item reaches the sink");
+    assert_eq!(
+        recorded("drain_out").len() as u64,
+        produced,
+        "every produced item reaches the sink"
+    );
 }
 
 #[test]
@@ -287,13 +319,24 @@ edges:
     );
     assert!(outcome.error.is_none());
     // 13 items at 60 Hz: the last is released 12/60 s = 200 ms after the first.
-    assert!(started.elapsed() >= Duration::from_millis(195), "{:?}", started.elapsed());
+    assert!(
+        started.elapsed() >= Duration::from_millis(195),
+        "{:?}",
+        started.elapsed()
+    );
 }
 
 #[test]
 fn fan_out_shares_payloads_instead_of_copying() {
     use bevworld_graph::{Header, Message};
-    let message = Message::new(Header { seq: 0, time_of_validity_us: 0, entered_graph: bevworld_graph::Instant::now() }, vec![0u8; 1 << 20]);
+    let message = Message::new(
+        Header {
+            seq: 0,
+            time_of_validity_us: 0,
+            entered_graph: bevworld_graph::Instant::now(),
+        },
+        vec![0u8; 1 << 20],
+    );
     let copy = message.clone();
     assert!(copy.shares_payload_with(&message));
 }

@@ -45,10 +45,15 @@ fn unknown_port_lists_the_ports() {
 
 #[test]
 fn type_mismatch_names_both_types() {
-    let d = problems("nodes:\n  - {id: a, kind: count}\n  - {id: t, kind: text_sink}\nedges:\n  - {from: a.out, to: t.text}\n");
+    let d = problems(
+        "nodes:\n  - {id: a, kind: count}\n  - {id: t, kind: text_sink}\nedges:\n  - {from: a.out, to: t.text}\n",
+    );
     let d = only(&d);
     assert!(d.message.contains("port type mismatch"));
-    assert!(d.message.contains("Counted") && d.message.contains("String"), "{d}");
+    assert!(
+        d.message.contains("Counted") && d.message.contains("String"),
+        "{d}"
+    );
     assert_eq!(line_col(d).0, 5);
 }
 
@@ -86,15 +91,23 @@ fn bad_parameter_gives_field_line_and_accepted_values() {
     );
     // The unconnected input is a second, separate problem.
     assert_eq!(d.0.len(), 2, "{d}");
-    let bad = d.iter().find(|d| d.message.contains("bad parameter")).unwrap();
+    let bad = d
+        .iter()
+        .find(|d| d.message.contains("bad parameter"))
+        .unwrap();
     assert!(bad.message.contains("'flavour'"), "{bad}");
     assert_eq!(line_col(bad).0, 7);
-    assert!(bad.hint.as_deref().unwrap().contains("`plain` or `fancy`"), "{bad}");
+    assert!(
+        bad.hint.as_deref().unwrap().contains("`plain` or `fancy`"),
+        "{bad}"
+    );
 }
 
 #[test]
 fn unknown_parameter_key_is_an_error() {
-    let d = problems("nodes:\n  - id: s\n    kind: count\n    params:\n      count: 3\n      cuont: 4\n");
+    let d = problems(
+        "nodes:\n  - id: s\n    kind: count\n    params:\n      count: 3\n      cuont: 4\n",
+    );
     let d = only(&d);
     assert!(d.message.contains("'cuont'"), "{d}");
     assert_eq!(line_col(d).0, 6);
@@ -103,9 +116,17 @@ fn unknown_parameter_key_is_an_error() {
 
 #[test]
 fn builder_range_check_names_the_field() {
-    let d = problems("nodes:\n  - {id: s, kind: count}\n  - id: t\n    kind: text_sink\n    params: {scale: -2}\nedges:\n  - {from: s.out, to: t.text}\n");
-    let bad = d.iter().find(|d| d.message.contains("bad parameter")).unwrap();
-    assert!(bad.message.contains("'scale'") && bad.message.contains("must be > 0"), "{bad}");
+    let d = problems(
+        "nodes:\n  - {id: s, kind: count}\n  - id: t\n    kind: text_sink\n    params: {scale: -2}\nedges:\n  - {from: s.out, to: t.text}\n",
+    );
+    let bad = d
+        .iter()
+        .find(|d| d.message.contains("bad parameter"))
+        .unwrap();
+    assert!(
+        bad.message.contains("'scale'") && bad.message.contains("must be > 0"),
+        "{bad}"
+    );
     assert_eq!(bad.hint.as_deref(), Some("accepted: a number > 0"));
 }
 
@@ -166,12 +187,25 @@ fn pacing_is_validated_and_only_for_sources() {
 #[test]
 fn set_overrides_parameters_and_rejects_unknown_nodes() {
     let yaml = "nodes:\n  - {id: a, kind: count, params: {count: 3}}\n  - {id: b, kind: record, params: {name: x}}\nedges:\n  - {from: a.out, to: b.in}\n";
-    let overrides = vec![Override::parse("a.count=7").unwrap(), Override::parse("a.pacing.rate_hz=12").unwrap()];
+    let overrides = vec![
+        Override::parse("a.count=7").unwrap(),
+        Override::parse("a.pacing.rate_hz=12").unwrap(),
+    ];
     let graph = resolve(yaml, "g.yaml", &registry(), &overrides).unwrap();
     assert_eq!(graph.nodes[0].params["count"], 7);
-    assert_eq!(graph.nodes[0].pacing, bevworld_graph::Pacing::Fixed { rate_hz: 12.0 });
+    assert_eq!(
+        graph.nodes[0].pacing,
+        bevworld_graph::Pacing::Fixed { rate_hz: 12.0 }
+    );
 
-    let bad = resolve(yaml, "g.yaml", &registry(), &[Override::parse("c.count=1").unwrap()]).err().unwrap();
+    let bad = resolve(
+        yaml,
+        "g.yaml",
+        &registry(),
+        &[Override::parse("c.count=1").unwrap()],
+    )
+    .err()
+    .unwrap();
     assert!(bad.mentions("--set names node 'c'"));
     assert!(Override::parse("nodot=1").is_err());
     assert!(Override::parse("a.count").is_err());
@@ -185,7 +219,10 @@ fn check_listing_shows_resolved_defaults() {
     let graph = resolve(&yaml, "g.yaml", &registry(), &[]).unwrap();
     let listing = graph.describe();
     assert!(listing.contains("\"step_us\":1"), "{listing}");
-    assert!(listing.contains("edge a.out -> b.in [Counted, capacity 16, block]"), "{listing}");
+    assert!(
+        listing.contains("edge a.out -> b.in [Counted, capacity 16, block]"),
+        "{listing}"
+    );
     let dot = bevworld_graph::dot::to_dot(&graph);
     assert!(dot.contains("\"a\" -> \"b\""));
 }

@@ -31,27 +31,42 @@ pub struct InspectArgs {
 }
 
 pub fn run(args: &InspectArgs) -> Result<ExitCode> {
-    let options = DatasetOptions { version: args.version.clone(), ..Default::default() };
-    let dataset = Dataset::open(&args.data, &options).with_context(|| format!("opening {}", args.data.display()))?;
+    let options = DatasetOptions {
+        version: args.version.clone(),
+        ..Default::default()
+    };
+    let dataset = Dataset::open(&args.data, &options)
+        .with_context(|| format!("opening {}", args.data.display()))?;
     let index = match (&args.sample, args.index) {
-        (Some(token), _) => dataset.index_of_sample(token).with_context(|| format!("no keyframe with sample token '{token}'"))?,
+        (Some(token), _) => dataset
+            .index_of_sample(token)
+            .with_context(|| format!("no keyframe with sample token '{token}'"))?,
         (None, index) => index.unwrap_or(0),
     };
     if index >= dataset.len() {
-        bail!("--index {index} is out of range: the dataset has {} frames", dataset.len());
+        bail!(
+            "--index {index} is out of range: the dataset has {} frames",
+            dataset.len()
+        );
     }
-    let frame = dataset.read(index).with_context(|| format!("reading frame {index}"))?;
+    let frame = dataset
+        .read(index)
+        .with_context(|| format!("reading frame {index}"))?;
     if frame.cameras.is_empty() {
         bail!("frame {index} has no cameras (a LiDAR-only dataset cannot be inspected)");
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
     for camera in &frame.cameras {
         let points = project_cloud(&frame.lidar, camera);
         let name = camera.channel.name();
         let png = args.out.join(format!("{name}.png"));
-        draw_points(&camera.image, &points, args.max_depth).save(&png).with_context(|| format!("writing {}", png.display()))?;
+        draw_points(&camera.image, &points, args.max_depth)
+            .save(&png)
+            .with_context(|| format!("writing {}", png.display()))?;
         let csv = args.out.join(format!("{name}.csv"));
-        bevworld_graph::io::write_atomic_now(&csv, to_csv(&points).as_bytes()).with_context(|| format!("writing {}", csv.display()))?;
+        bevworld_graph::io::write_atomic_now(&csv, to_csv(&points).as_bytes())
+            .with_context(|| format!("writing {}", csv.display()))?;
         println!("{name}: {} points -> {}", points.len(), png.display());
     }
     Ok(ExitCode::SUCCESS)

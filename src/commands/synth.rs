@@ -46,7 +46,9 @@ pub struct SynthArgs {
 }
 
 pub fn run(args: &SynthArgs) -> Result<ExitCode> {
-    let (camera_width, camera_height) = parse_size(&args.camera_size).map_err(anyhow::Error::msg).context("--camera-size")?;
+    let (camera_width, camera_height) = parse_size(&args.camera_size)
+        .map_err(anyhow::Error::msg)
+        .context("--camera-size")?;
     if !(args.seconds > 0.0) || args.scenes == 0 {
         bail!("--seconds must be > 0 and --scenes >= 1");
     }
@@ -58,7 +60,10 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     }
     let tables = args.out.join(bevworld_sensors::synth::VERSION);
     if tables.exists() && !args.overwrite {
-        bail!("{} already holds a dataset; pass --overwrite to replace it", args.out.display());
+        bail!(
+            "{} already holds a dataset; pass --overwrite to replace it",
+            args.out.display()
+        );
     }
     let mut lidar = LidarSpec::nuscenes_like(args.azimuth_step);
     lidar.range_noise = args.range_noise;
@@ -71,13 +76,19 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
         camera_height,
         lidar,
         agents: args.agents,
-        image_encoding: args.jpeg.map_or(ImageEncoding::Png, |quality| ImageEncoding::Jpeg { quality }),
+        image_encoding: args
+            .jpeg
+            .map_or(ImageEncoding::Png, |quality| ImageEncoding::Jpeg {
+                quality,
+            }),
         ..Default::default()
     };
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{spinner} synth [{bar:30}] {pos}/{len} frames, {per_sec}, eta {eta}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        indicatif::ProgressStyle::with_template(
+            "{spinner} synth [{bar:30}] {pos}/{len} frames, {per_sec}, eta {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let summary = generate(&args.out, &config, |done, total| {
         bar.set_length(total as u64);

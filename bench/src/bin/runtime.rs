@@ -9,7 +9,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use bevworld_bench::{markdown_table, plot, results_dir, write_results};
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, Outputs, PortSpec, Registry, RunOptions, Sink, Source, SourceInfo, Task, resolve, run};
+use bevworld_graph::{
+    Inputs, KindSpec, Node, NodeError, Outputs, PortSpec, Registry, RunOptions, Sink, Source,
+    SourceInfo, Task, resolve, run,
+};
 use serde::{Deserialize, Serialize};
 
 /// The message: a sequence number and, for large messages, a shared buffer.
@@ -35,7 +38,9 @@ struct BenchSource {
 
 impl Source for BenchSource {
     fn start(&mut self) -> Result<SourceInfo, NodeError> {
-        Ok(SourceInfo { total: Some(self.count) })
+        Ok(SourceInfo {
+            total: Some(self.count),
+        })
     }
 
     fn next(&mut self, out: &mut Outputs) -> Result<Option<i64>, NodeError> {
@@ -45,7 +50,8 @@ impl Source for BenchSource {
         let seq = self.next;
         self.next += 1;
         out.set_time_of_validity(seq as i64);
-        let blob = (!self.pool.is_empty()).then(|| Arc::clone(&self.pool[seq as usize % self.pool.len()]));
+        let blob =
+            (!self.pool.is_empty()).then(|| Arc::clone(&self.pool[seq as usize % self.pool.len()]));
         out.send("out", BenchMessage { seq, blob })?;
         Ok(Some(seq as i64))
     }
@@ -66,7 +72,11 @@ static POOL: std::sync::OnceLock<Vec<Arc<Vec<u8>>>> = std::sync::OnceLock::new()
 const POOL_SIZE: usize = 64;
 
 fn pool() -> &'static Vec<Arc<Vec<u8>>> {
-    POOL.get_or_init(|| (0..POOL_SIZE).map(|k| Arc::new(vec![k as u8; 1 << 20])).collect())
+    POOL.get_or_init(|| {
+        (0..POOL_SIZE)
+            .map(|k| Arc::new(vec![k as u8; 1 << 20]))
+            .collect()
+    })
 }
 
 struct Count {
@@ -77,7 +87,10 @@ impl Sink for Count {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
         let message = inputs.get::<BenchMessage>("in")?;
         if message.seq != self.expected_next {
-            return Err(NodeError::fatal(format!("out of order: {} after {}", message.seq, self.expected_next)));
+            return Err(NodeError::fatal(format!(
+                "out of order: {} after {}",
+                message.seq, self.expected_next
+            )));
         }
         self.expected_next += 1;
         if let Some(blob) = &message.blob {
@@ -95,22 +108,38 @@ struct NoParams {}
 
 fn registry() -> Registry {
     let mut registry = Registry::new();
-    registry.register(KindSpec::source("bench_source", "counts").output(PortSpec::new::<BenchMessage>("out")), |p: SourceParams| {
-        let pool: Vec<Arc<Vec<u8>>> = if p.payload_bytes > 0 { pool().clone() } else { Vec::new() };
-        Ok(Node::Source(Box::new(BenchSource { count: p.count, next: 0, pool })))
-    });
     registry.register(
-        KindSpec::task("bench_pass", "forwards").input(PortSpec::new::<BenchMessage>("in")).output(PortSpec::new::<BenchMessage>("out")),
+        KindSpec::source("bench_source", "counts").output(PortSpec::new::<BenchMessage>("out")),
+        |p: SourceParams| {
+            let pool: Vec<Arc<Vec<u8>>> = if p.payload_bytes > 0 {
+                pool().clone()
+            } else {
+                Vec::new()
+            };
+            Ok(Node::Source(Box::new(BenchSource {
+                count: p.count,
+                next: 0,
+                pool,
+            })))
+        },
+    );
+    registry.register(
+        KindSpec::task("bench_pass", "forwards")
+            .input(PortSpec::new::<BenchMessage>("in"))
+            .output(PortSpec::new::<BenchMessage>("out")),
         |_: NoParams| Ok(Node::Task(Box::new(Pass))),
     );
-    registry.register(KindSpec::sink("bench_count", "counts").input(PortSpec::new::<BenchMessage>("in")), |_: NoParams| {
-        Ok(Node::Sink(Box::new(Count { expected_next: 0 })))
-    });
+    registry.register(
+        KindSpec::sink("bench_count", "counts").input(PortSpec::new::<BenchMessage>("in")),
+        |_: NoParams| Ok(Node::Sink(Box::new(Count { expected_next: 0 }))),
+    );
     registry
 }
 
 fn chain_yaml(count: u64, payload_bytes: usize, capacity: usize, pacing: &str) -> String {
-    let mut yaml = format!("settings: {{default_capacity: {capacity}, progress: false}}\nnodes:\n  - {{id: src, kind: bench_source, params: {{count: {count}, payload_bytes: {payload_bytes}}}{pacing}}}\n");
+    let mut yaml = format!(
+        "settings: {{default_capacity: {capacity}, progress: false}}\nnodes:\n  - {{id: src, kind: bench_source, params: {{count: {count}, payload_bytes: {payload_bytes}}}{pacing}}}\n"
+    );
     for k in 1..=5 {
         yaml.push_str(&format!("  - {{id: p{k}, kind: bench_pass}}\n"));
     }
@@ -131,7 +160,9 @@ struct Measured {
 /// The median of `runs` measurements: timings on a shared 2-core VM swing between runs.
 fn measure(count: u64, payload_bytes: usize, capacity: usize, pacing: &str) -> Measured {
     let runs = 5;
-    let mut all: Vec<Measured> = (0..runs).map(|_| measure_once(count, payload_bytes, capacity, pacing)).collect();
+    let mut all: Vec<Measured> = (0..runs)
+        .map(|_| measure_once(count, payload_bytes, capacity, pacing))
+        .collect();
     let median = |values: &mut Vec<f64>| {
         values.sort_by(f64::total_cmp);
         values[values.len() / 2]
@@ -144,7 +175,13 @@ fn measure(count: u64, payload_bytes: usize, capacity: usize, pacing: &str) -> M
 }
 
 fn measure_once(count: u64, payload_bytes: usize, capacity: usize, pacing: &str) -> Measured {
-    let graph = resolve(&chain_yaml(count, payload_bytes, capacity, pacing), "bench", &registry(), &[]).expect("bench graph");
+    let graph = resolve(
+        &chain_yaml(count, payload_bytes, capacity, pacing),
+        "bench",
+        &registry(),
+        &[],
+    )
+    .expect("bench graph");
     let started = Instant::now();
     let outcome = run(graph, RunOptions::default());
     let wall = started.elapsed().as_secs_f64();
@@ -154,7 +191,11 @@ fn measure_once(count: u64, payload_bytes: usize, capacity: usize, pacing: &str)
     let sink = outcome.report.node("sink").expect("sink report");
     assert_eq!(sink.items_in, count, "every message arrives");
     // 6 edges from the source to the sink.
-    Measured { rate: count as f64 / wall, hop_p50_us: sink.age_p50_us / 6.0, hop_p99_us: sink.age_p99_us / 6.0 }
+    Measured {
+        rate: count as f64 / wall,
+        hop_p50_us: sink.age_p50_us / 6.0,
+        hop_p99_us: sink.age_p99_us / 6.0,
+    }
 }
 
 /// The floor: the same chain as bare threads and crossbeam channels, no runtime.
@@ -204,7 +245,11 @@ fn bare_crossbeam_hop_latency(count: usize) -> (f64, f64) {
         }));
         rx = next_rx;
     }
-    let sink = std::thread::spawn(move || rx.iter().map(|sent| sent.elapsed().as_secs_f64() * 1e6 / 6.0).collect::<Vec<f64>>());
+    let sink = std::thread::spawn(move || {
+        rx.iter()
+            .map(|sent| sent.elapsed().as_secs_f64() * 1e6 / 6.0)
+            .collect::<Vec<f64>>()
+    });
     for _ in 0..count {
         std::thread::sleep(std::time::Duration::from_millis(1));
         let _ = first_tx.send(Instant::now());
@@ -215,7 +260,10 @@ fn bare_crossbeam_hop_latency(count: usize) -> (f64, f64) {
         let _ = handle.join();
     }
     hops.sort_by(f64::total_cmp);
-    (bevworld_bench::percentile(&hops, 0.5), bevworld_bench::percentile(&hops, 0.99))
+    (
+        bevworld_bench::percentile(&hops, 0.5),
+        bevworld_bench::percentile(&hops, 0.99),
+    )
 }
 
 fn main() {
@@ -233,14 +281,59 @@ fn main() {
     let copies = COPIES.load(Ordering::Relaxed);
 
     let rows = vec![
-        vec!["bare crossbeam chain (floor)".into(), "8 B".into(), format!("{:.0}", bare), "-".into(), "-".into()],
-        vec!["runtime, unpaced".into(), "small".into(), format!("{:.0}", small_run.rate), format!("{:.2}", small_run.hop_p50_us), format!("{:.2}", small_run.hop_p99_us)],
-        vec!["runtime, unpaced".into(), "1 MB".into(), format!("{:.0}", large_run.rate), format!("{:.2}", large_run.hop_p50_us), format!("{:.2}", large_run.hop_p99_us)],
-        vec!["bare crossbeam chain, 1 kHz (floor)".into(), "8 B".into(), "-".into(), format!("{floor_p50:.2}"), format!("{floor_p99:.2}")],
-        vec!["runtime, 1 kHz".into(), "small".into(), "-".into(), format!("{:.2}", paced_small.hop_p50_us), format!("{:.2}", paced_small.hop_p99_us)],
-        vec!["runtime, 500 Hz".into(), "1 MB".into(), "-".into(), format!("{:.2}", paced_large.hop_p50_us), format!("{:.2}", paced_large.hop_p99_us)],
+        vec![
+            "bare crossbeam chain (floor)".into(),
+            "8 B".into(),
+            format!("{:.0}", bare),
+            "-".into(),
+            "-".into(),
+        ],
+        vec![
+            "runtime, unpaced".into(),
+            "small".into(),
+            format!("{:.0}", small_run.rate),
+            format!("{:.2}", small_run.hop_p50_us),
+            format!("{:.2}", small_run.hop_p99_us),
+        ],
+        vec![
+            "runtime, unpaced".into(),
+            "1 MB".into(),
+            format!("{:.0}", large_run.rate),
+            format!("{:.2}", large_run.hop_p50_us),
+            format!("{:.2}", large_run.hop_p99_us),
+        ],
+        vec![
+            "bare crossbeam chain, 1 kHz (floor)".into(),
+            "8 B".into(),
+            "-".into(),
+            format!("{floor_p50:.2}"),
+            format!("{floor_p99:.2}"),
+        ],
+        vec![
+            "runtime, 1 kHz".into(),
+            "small".into(),
+            "-".into(),
+            format!("{:.2}", paced_small.hop_p50_us),
+            format!("{:.2}", paced_small.hop_p99_us),
+        ],
+        vec![
+            "runtime, 500 Hz".into(),
+            "1 MB".into(),
+            "-".into(),
+            format!("{:.2}", paced_large.hop_p50_us),
+            format!("{:.2}", paced_large.hop_p99_us),
+        ],
     ];
-    let table = markdown_table(&["setup", "message", "messages/s through 5 pass-through nodes", "hop p50 µs", "hop p99 µs"], &rows);
+    let table = markdown_table(
+        &[
+            "setup",
+            "message",
+            "messages/s through 5 pass-through nodes",
+            "hop p50 µs",
+            "hop p99 µs",
+        ],
+        &rows,
+    );
     print!("{table}");
     println!("1 MB payload copies detected at the sink: {copies}");
     let notes = format!(
@@ -266,7 +359,11 @@ The bare chain at 1 kHz is the floor for any thread-per-node design on this mach
     let svg = plot::bars(
         "Messages per second through 5 pass-through nodes",
         "msgs/s",
-        &[("bare crossbeam (floor)".into(), bare), ("runtime, small".into(), small_run.rate), ("runtime, 1 MB (shared)".into(), large_run.rate)],
+        &[
+            ("bare crossbeam (floor)".into(), bare),
+            ("runtime, small".into(), small_run.rate),
+            ("runtime, 1 MB (shared)".into(), large_run.rate),
+        ],
         false,
     );
     let _ = std::fs::write(results_dir().join("runtime.svg"), svg);

@@ -8,7 +8,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use bevworld_bench::{markdown_table, percentile, plot, results_dir, write_results};
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, PortSpec, Registry, RunOptions, Sink, resolve, run};
+use bevworld_graph::{
+    Inputs, KindSpec, Node, NodeError, PortSpec, Registry, RunOptions, Sink, resolve, run,
+};
 use bevworld_sensors::synth::{SynthConfig, generate};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_types::SensorFrame;
@@ -34,14 +36,18 @@ impl Sink for FrameSink {
 fn registry() -> Registry {
     let mut registry = Registry::new();
     bevworld_sensors::register(&mut registry);
-    registry.register(KindSpec::sink("frame_sink", "consumes frames").input(PortSpec::new::<SensorFrame>("frame")), |_: NoParams| {
-        Ok(Node::Sink(Box::new(FrameSink)))
-    });
+    registry.register(
+        KindSpec::sink("frame_sink", "consumes frames")
+            .input(PortSpec::new::<SensorFrame>("frame")),
+        |_: NoParams| Ok(Node::Sink(Box::new(FrameSink))),
+    );
     registry
 }
 
 fn shared_data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .join(name)
 }
 
 /// Replays `repeat` frames unpaced through source -> sink; (frames/s, source p50 ms, p99 ms).
@@ -58,12 +64,19 @@ fn replay(data: &str, repeat: usize) -> (f64, f64, f64) {
     }
     let source = outcome.report.node("source").expect("source");
     let frames = source.items_out as f64;
-    (frames / wall, source.latency_p50_us / 1000.0, source.latency_p99_us / 1000.0)
+    (
+        frames / wall,
+        source.latency_p50_us / 1000.0,
+        source.latency_p99_us / 1000.0,
+    )
 }
 
 /// Fetch + decode of one frame, `n` times, on a rayon pool of `threads`; per-frame ms sorted.
 fn decode_loop(dataset: &Dataset, n: usize, threads: usize) -> Vec<f64> {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("pool");
     let mut times: Vec<f64> = pool.install(|| {
         (0..n)
             .map(|_| {
@@ -88,20 +101,60 @@ fn main() {
     let (graph_rate, graph_p50, graph_p99) = replay(&nuscenes.display().to_string(), 40);
     let (kitti_rate, kitti_p50, kitti_p99) = replay(&kitti.display().to_string(), 5);
 
-    let synth_dir = std::env::temp_dir().join(format!("bevworld-bench-synth-{}", std::process::id()));
+    let synth_dir =
+        std::env::temp_dir().join(format!("bevworld-bench-synth-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&synth_dir);
-    let synth = generate(&synth_dir, &SynthConfig { seconds: 2.0, ..Default::default() }, |_, _| {}).expect("synth");
+    let synth = generate(
+        &synth_dir,
+        &SynthConfig {
+            seconds: 2.0,
+            ..Default::default()
+        },
+        |_, _| {},
+    )
+    .expect("synth");
     let _ = std::fs::remove_dir_all(&synth_dir);
 
     let ms = |v: f64| format!("{v:.1}");
     let rows = vec![
-        vec!["nuScenes frame: read + decode, 1 thread".into(), format!("{:.1}", 1000.0 / percentile(&sequential, 0.5)), ms(percentile(&sequential, 0.5)), ms(percentile(&sequential, 0.99))],
-        vec!["nuScenes frame: read + decode, 2 threads (cameras in parallel)".into(), format!("{:.1}", 1000.0 / percentile(&parallel, 0.5)), ms(percentile(&parallel, 0.5)), ms(percentile(&parallel, 0.99))],
-        vec!["nuScenes frame through the graph (prefetch on the I/O pool)".into(), format!("{graph_rate:.1}"), ms(graph_p50), ms(graph_p99)],
-        vec!["KITTI scan (124k points) through the graph".into(), format!("{kitti_rate:.1}"), ms(kitti_p50), ms(kitti_p99)],
-        vec![format!("synthetic world generation, 400x224 cameras, {} points/sweep", synth.lidar_points / synth.frames.max(1)), format!("{:.2}", synth.frames_per_second()), ms(1000.0 / synth.frames_per_second()), "-".into()],
+        vec![
+            "nuScenes frame: read + decode, 1 thread".into(),
+            format!("{:.1}", 1000.0 / percentile(&sequential, 0.5)),
+            ms(percentile(&sequential, 0.5)),
+            ms(percentile(&sequential, 0.99)),
+        ],
+        vec![
+            "nuScenes frame: read + decode, 2 threads (cameras in parallel)".into(),
+            format!("{:.1}", 1000.0 / percentile(&parallel, 0.5)),
+            ms(percentile(&parallel, 0.5)),
+            ms(percentile(&parallel, 0.99)),
+        ],
+        vec![
+            "nuScenes frame through the graph (prefetch on the I/O pool)".into(),
+            format!("{graph_rate:.1}"),
+            ms(graph_p50),
+            ms(graph_p99),
+        ],
+        vec![
+            "KITTI scan (124k points) through the graph".into(),
+            format!("{kitti_rate:.1}"),
+            ms(kitti_p50),
+            ms(kitti_p99),
+        ],
+        vec![
+            format!(
+                "synthetic world generation, 400x224 cameras, {} points/sweep",
+                synth.lidar_points / synth.frames.max(1)
+            ),
+            format!("{:.2}", synth.frames_per_second()),
+            ms(1000.0 / synth.frames_per_second()),
+            "-".into(),
+        ],
     ];
-    let table = markdown_table(&["workload", "frames/s", "latency p50 ms", "latency p99 ms"], &rows);
+    let table = markdown_table(
+        &["workload", "frames/s", "latency p50 ms", "latency p99 ms"],
+        &rows,
+    );
     print!("{table}");
     let notes = "A nuScenes frame is six 1600x900 JPEG decodes plus the 34,688-point LIDAR_TOP sweep. \
 The graph rows measure the sustainable rate of source -> sink with the next frame's files read on the I/O pool while the current one decodes; \
@@ -124,8 +177,14 @@ latency is the source's time per frame. Goal: >= 24 Hz (2x headroom over 12 Hz l
         "Frames per second (2 cores)",
         "frames/s",
         &[
-            ("nuScenes decode, 1 thread".into(), 1000.0 / percentile(&sequential, 0.5)),
-            ("nuScenes decode, 2 threads".into(), 1000.0 / percentile(&parallel, 0.5)),
+            (
+                "nuScenes decode, 1 thread".into(),
+                1000.0 / percentile(&sequential, 0.5),
+            ),
+            (
+                "nuScenes decode, 2 threads".into(),
+                1000.0 / percentile(&parallel, 0.5),
+            ),
             ("nuScenes through graph".into(), graph_rate),
             ("KITTI through graph".into(), kitti_rate),
             ("synthetic generation".into(), synth.frames_per_second()),

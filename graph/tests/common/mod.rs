@@ -8,7 +8,8 @@ use std::sync::{Mutex, OnceLock};
 use std::time::Duration;
 
 use bevworld_graph::{
-    Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Sink, Source, SyncMode, Task,
+    Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Sink, Source,
+    SyncMode, Task,
 };
 use serde::{Deserialize, Serialize};
 
@@ -36,7 +37,13 @@ impl Drop for Counted {
 
 /// What recording sinks saw, by sink name.
 pub fn recorded(name: &str) -> Vec<u64> {
-    records().lock().unwrap().iter().filter(|(n, _)| n == name).map(|(_, v)| *v).collect()
+    records()
+        .lock()
+        .unwrap()
+        .iter()
+        .filter(|(n, _)| n == name)
+        .map(|(_, v)| *v)
+        .collect()
 }
 
 fn records() -> &'static Mutex<Vec<(String, u64)>> {
@@ -66,7 +73,9 @@ struct CountSource {
 
 impl Source for CountSource {
     fn start(&mut self) -> Result<bevworld_graph::SourceInfo, NodeError> {
-        Ok(bevworld_graph::SourceInfo { total: self.params.count })
+        Ok(bevworld_graph::SourceInfo {
+            total: self.params.count,
+        })
     }
 
     fn next(&mut self, out: &mut Outputs) -> Result<Option<i64>, NodeError> {
@@ -147,7 +156,10 @@ impl Sink for RecordSink {
         if self.params.sleep_us > 0 {
             std::thread::sleep(Duration::from_micros(self.params.sleep_us));
         }
-        records().lock().unwrap().push((self.params.name.clone(), value));
+        records()
+            .lock()
+            .unwrap()
+            .push((self.params.name.clone(), value));
         Ok(())
     }
 }
@@ -225,7 +237,11 @@ pub fn registry() -> Registry {
         KindSpec::sink("text_sink", "takes text").input(PortSpec::new::<String>("text")),
         |params: TextParams| {
             if params.scale <= 0.0 {
-                return Err(ParamError::field("scale", format!("must be > 0, got {}", params.scale)).with_accepted("a number > 0"));
+                return Err(ParamError::field(
+                    "scale",
+                    format!("must be > 0, got {}", params.scale),
+                )
+                .with_accepted("a number > 0"));
             }
             Ok(Node::Sink(Box::new(TextSink)))
         },

@@ -30,10 +30,15 @@ impl BackendKind {
 pub enum DeviceError {
     #[error("BURN_DEVICE='{0}' is not a known backend (accepted: flex, wgpu, cuda)")]
     Unknown(String),
-    #[error("BURN_DEVICE=cuda, but this build has no CUDA support (rebuild with `--features cuda`)")]
+    #[error(
+        "BURN_DEVICE=cuda, but this build has no CUDA support (rebuild with `--features cuda`)"
+    )]
     CudaNotBuilt,
     #[error("the {backend} device failed: {message}")]
-    Failed { backend: &'static str, message: String },
+    Failed {
+        backend: &'static str,
+        message: String,
+    },
 }
 
 /// Parses a backend name as `BURN_DEVICE` takes it.
@@ -74,15 +79,26 @@ pub fn from_env() -> Result<(BackendKind, Device), DeviceError> {
 /// Measured dense matmul rate on a device, in GFLOP/s: the best of `reps` timed `n x n` products
 /// after one warm-up. The yardstick for "achieved GFLOP/s as a fraction of the machine's rate".
 pub fn matmul_gflops(device: &Device, n: usize, reps: usize) -> Result<f64, DeviceError> {
-    let a = Tensor::<2>::random([n, n], burn::tensor::Distribution::Uniform(-1.0, 1.0), device);
-    let b = Tensor::<2>::random([n, n], burn::tensor::Distribution::Uniform(-1.0, 1.0), device);
+    let a = Tensor::<2>::random(
+        [n, n],
+        burn::tensor::Distribution::Uniform(-1.0, 1.0),
+        device,
+    );
+    let b = Tensor::<2>::random(
+        [n, n],
+        burn::tensor::Distribution::Uniform(-1.0, 1.0),
+        device,
+    );
     let sync = |t: Tensor<2>| -> Result<(), DeviceError> {
         // Reading one value back waits for the product on asynchronous backends.
         t.slice([0..1, 0..1])
             .into_data()
             .try_to_vec::<f32>()
             .map(|_| ())
-            .map_err(|error| DeviceError::Failed { backend: "matmul", message: format!("{error:?}") })
+            .map_err(|error| DeviceError::Failed {
+                backend: "matmul",
+                message: format!("{error:?}"),
+            })
     };
     sync(a.clone().matmul(b.clone()))?;
     let mut best = f64::INFINITY;

@@ -6,9 +6,9 @@ use bevworld_types::SensorFrame;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SensorError};
+use crate::kitti::Kitti;
 use crate::lidar_file::NonFinitePolicy;
 use crate::nuscenes::reader::FrameFiles;
-use crate::kitti::Kitti;
 use crate::nuscenes::{NuScenes, NuScenesOptions};
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -51,20 +51,30 @@ impl Dataset {
             return Err(SensorError::file(root, "dataset folder does not exist"));
         }
         let nuscenes = |version: Option<String>| {
-            NuScenes::open(root, NuScenesOptions {
-                version,
-                scenes: options.scenes.clone(),
-                sweeps: options.sweeps,
-                non_finite: options.non_finite,
-                skip_images: options.skip_images,
-            })
+            NuScenes::open(
+                root,
+                NuScenesOptions {
+                    version,
+                    scenes: options.scenes.clone(),
+                    sweeps: options.sweeps,
+                    non_finite: options.non_finite,
+                    skip_images: options.skip_images,
+                },
+            )
             .map(Dataset::NuScenes)
         };
         match options.format {
             DatasetFormat::Nuscenes => nuscenes(options.version.clone()),
-            DatasetFormat::Synth => nuscenes(Some(options.version.clone().unwrap_or_else(|| crate::synth::VERSION.to_string()))),
+            DatasetFormat::Synth => nuscenes(Some(
+                options
+                    .version
+                    .clone()
+                    .unwrap_or_else(|| crate::synth::VERSION.to_string()),
+            )),
             DatasetFormat::Kitti => Kitti::open(root, options.non_finite).map(Dataset::Kitti),
-            DatasetFormat::Auto if Kitti::recognise(root) => Kitti::open(root, options.non_finite).map(Dataset::Kitti),
+            DatasetFormat::Auto if Kitti::recognise(root) => {
+                Kitti::open(root, options.non_finite).map(Dataset::Kitti)
+            }
             DatasetFormat::Auto => nuscenes(options.version.clone()),
         }
     }
@@ -84,7 +94,9 @@ impl Dataset {
     pub fn index_of_sample(&self, token: &str) -> Option<usize> {
         match self {
             Dataset::NuScenes(d) => d.index_of_sample(token),
-            Dataset::Kitti(d) => (0..d.len()).find(|i| format!("{}/{:06}", d.sequence(), i) == token),
+            Dataset::Kitti(d) => {
+                (0..d.len()).find(|i| format!("{}/{:06}", d.sequence(), i) == token)
+            }
         }
     }
 
@@ -106,7 +118,9 @@ impl Dataset {
         match (self, fetched) {
             (Dataset::NuScenes(d), FetchedFrame::NuScenes(files)) => d.decode(files),
             (Dataset::Kitti(d), FetchedFrame::Kitti(files)) => d.decode(files),
-            _ => Err(SensorError::Other("fetched files belong to another dataset".into())),
+            _ => Err(SensorError::Other(
+                "fetched files belong to another dataset".into(),
+            )),
         }
     }
 

@@ -31,14 +31,23 @@ pub fn project_cloud(cloud: &PointCloud, camera: &CameraImage) -> Vec<Projected>
         .iter()
         .enumerate()
         .filter_map(|(index, p)| {
-            let q = camera_from_lidar.transform_point3(DVec3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)));
+            let q = camera_from_lidar.transform_point3(DVec3::new(
+                f64::from(p.x),
+                f64::from(p.y),
+                f64::from(p.z),
+            ));
             let depth = q.z;
             if depth <= MIN_DEPTH {
                 return None;
             }
             let u = (k.fx * q.x + k.cx * q.z) / q.z;
             let v = (k.fy * q.y + k.cy * q.z) / q.z;
-            (u > 1.0 && u < width - 1.0 && v > 1.0 && v < height - 1.0).then_some(Projected { u, v, depth, index })
+            (u > 1.0 && u < width - 1.0 && v > 1.0 && v < height - 1.0).then_some(Projected {
+                u,
+                v,
+                depth,
+                index,
+            })
         })
         .collect()
 }

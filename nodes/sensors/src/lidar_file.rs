@@ -38,7 +38,12 @@ impl LidarLayout {
 
 /// Decodes a sweep's bytes; `path` names the file in errors. Returns the points and how many
 /// non-finite points were dropped.
-pub fn decode_points(bytes: &[u8], layout: LidarLayout, policy: NonFinitePolicy, path: &Path) -> Result<(Vec<LidarPoint>, usize)> {
+pub fn decode_points(
+    bytes: &[u8],
+    layout: LidarLayout,
+    policy: NonFinitePolicy,
+    path: &Path,
+) -> Result<(Vec<LidarPoint>, usize)> {
     let stride = layout.floats_per_point() * 4;
     if bytes.len() % stride != 0 {
         return Err(SensorError::file(
@@ -54,12 +59,23 @@ pub fn decode_points(bytes: &[u8], layout: LidarLayout, policy: NonFinitePolicy,
     let mut points = Vec::with_capacity(bytes.len() / stride);
     let mut dropped = 0usize;
     for (index, record) in bytes.chunks_exact(stride).enumerate() {
-        let f = |k: usize| f32::from_le_bytes([record[4 * k], record[4 * k + 1], record[4 * k + 2], record[4 * k + 3]]);
+        let f = |k: usize| {
+            f32::from_le_bytes([
+                record[4 * k],
+                record[4 * k + 1],
+                record[4 * k + 2],
+                record[4 * k + 3],
+            ])
+        };
         let (x, y, z, intensity) = (f(0), f(1), f(2), f(3));
         let ring = match layout {
             LidarLayout::NuScenes => {
                 let ring = f(4);
-                if ring.is_finite() && ring >= 0.0 { ring as u16 } else { 0 }
+                if ring.is_finite() && ring >= 0.0 {
+                    ring as u16
+                } else {
+                    0
+                }
             }
             LidarLayout::Kitti => 0,
         };
@@ -70,11 +86,22 @@ pub fn decode_points(bytes: &[u8], layout: LidarLayout, policy: NonFinitePolicy,
                     continue;
                 }
                 NonFinitePolicy::Error => {
-                    return Err(SensorError::file(path, format!("point {index} has a non-finite value ({x}, {y}, {z}, {intensity})")));
+                    return Err(SensorError::file(
+                        path,
+                        format!(
+                            "point {index} has a non-finite value ({x}, {y}, {z}, {intensity})"
+                        ),
+                    ));
                 }
             }
         }
-        points.push(LidarPoint { x, y, z, intensity, ring });
+        points.push(LidarPoint {
+            x,
+            y,
+            z,
+            intensity,
+            ring,
+        });
     }
     Ok((points, dropped))
 }
@@ -100,29 +127,88 @@ mod tests {
     #[test]
     fn round_trip_and_truncation() {
         let points = vec![
-            LidarPoint { x: 1.0, y: -2.0, z: 0.5, intensity: 7.0, ring: 3 },
-            LidarPoint { x: 4.0, y: 5.0, z: 6.0, intensity: 0.0, ring: 31 },
+            LidarPoint {
+                x: 1.0,
+                y: -2.0,
+                z: 0.5,
+                intensity: 7.0,
+                ring: 3,
+            },
+            LidarPoint {
+                x: 4.0,
+                y: 5.0,
+                z: 6.0,
+                intensity: 0.0,
+                ring: 31,
+            },
         ];
         let bytes = encode_points(&points, LidarLayout::NuScenes);
         assert_eq!(bytes.len(), 40);
-        let (back, dropped) = decode_points(&bytes, LidarLayout::NuScenes, NonFinitePolicy::Drop, Path::new("a.pcd.bin")).unwrap();
+        let (back, dropped) = decode_points(
+            &bytes,
+            LidarLayout::NuScenes,
+            NonFinitePolicy::Drop,
+            Path::new("a.pcd.bin"),
+        )
+        .unwrap();
         assert_eq!((back, dropped), (points, 0));
-        let error = decode_points(&bytes[..39], LidarLayout::NuScenes, NonFinitePolicy::Drop, Path::new("a.pcd.bin")).unwrap_err();
+        let error = decode_points(
+            &bytes[..39],
+            LidarLayout::NuScenes,
+            NonFinitePolicy::Drop,
+            Path::new("a.pcd.bin"),
+        )
+        .unwrap_err();
         let text = error.to_string();
-        assert!(text.contains("a.pcd.bin") && text.contains("truncated") && text.contains("19 trailing"), "{text}");
+        assert!(
+            text.contains("a.pcd.bin")
+                && text.contains("truncated")
+                && text.contains("19 trailing"),
+            "{text}"
+        );
     }
 
     #[test]
     fn non_finite_points_are_dropped_or_rejected() {
         let points = vec![
-            LidarPoint { x: f32::NAN, y: 0.0, z: 0.0, intensity: 1.0, ring: 0 },
-            LidarPoint { x: 1.0, y: f32::INFINITY, z: 0.0, intensity: 1.0, ring: 0 },
-            LidarPoint { x: 1.0, y: 2.0, z: 3.0, intensity: 1.0, ring: 0 },
+            LidarPoint {
+                x: f32::NAN,
+                y: 0.0,
+                z: 0.0,
+                intensity: 1.0,
+                ring: 0,
+            },
+            LidarPoint {
+                x: 1.0,
+                y: f32::INFINITY,
+                z: 0.0,
+                intensity: 1.0,
+                ring: 0,
+            },
+            LidarPoint {
+                x: 1.0,
+                y: 2.0,
+                z: 3.0,
+                intensity: 1.0,
+                ring: 0,
+            },
         ];
         let bytes = encode_points(&points, LidarLayout::Kitti);
-        let (kept, dropped) = decode_points(&bytes, LidarLayout::Kitti, NonFinitePolicy::Drop, Path::new("k.bin")).unwrap();
+        let (kept, dropped) = decode_points(
+            &bytes,
+            LidarLayout::Kitti,
+            NonFinitePolicy::Drop,
+            Path::new("k.bin"),
+        )
+        .unwrap();
         assert_eq!((kept.len(), dropped), (1, 2));
-        let error = decode_points(&bytes, LidarLayout::Kitti, NonFinitePolicy::Error, Path::new("k.bin")).unwrap_err();
+        let error = decode_points(
+            &bytes,
+            LidarLayout::Kitti,
+            NonFinitePolicy::Error,
+            Path::new("k.bin"),
+        )
+        .unwrap_err();
         assert!(error.to_string().contains("point 0 has a non-finite value"));
     }
 }

@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use bevworld_graph::io::{spawn_io, wait};
-use bevworld_graph::{KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Source, SourceInfo};
+use bevworld_graph::{
+    KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Source, SourceInfo,
+};
 use bevworld_types::{ImageSet, PointCloud, SensorFrame};
 use serde::{Deserialize, Serialize};
 use tokio::task::JoinHandle;
@@ -83,9 +85,17 @@ fn default_size() -> String {
 
 /// Parses `WxH`.
 pub fn parse_size(text: &str) -> Result<(u32, u32), String> {
-    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("'{text}' is not WxH"))?;
-    let w: u32 = w.trim().parse().map_err(|_| format!("'{w}' is not a width"))?;
-    let h: u32 = h.trim().parse().map_err(|_| format!("'{h}' is not a height"))?;
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{text}' is not WxH"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{w}' is not a width"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{h}' is not a height"))?;
     if w < 16 || h < 16 || w > 8192 || h > 8192 {
         return Err(format!("{w}x{h} is outside 16..8192"));
     }
@@ -103,25 +113,43 @@ pub struct DatasetSource {
 impl DatasetSource {
     pub fn new(params: DatasetSourceParams) -> Result<Self, ParamError> {
         if let Some(shard) = &params.shard {
-            parse_shard(shard).map_err(|message| ParamError::field("shard", message).with_accepted("I/N with 0 <= I < N"))?;
+            parse_shard(shard).map_err(|message| {
+                ParamError::field("shard", message).with_accepted("I/N with 0 <= I < N")
+            })?;
         }
         if params.repeat == 0 {
-            return Err(ParamError::field("repeat", "must be at least 1").with_accepted("an integer >= 1"));
+            return Err(
+                ParamError::field("repeat", "must be at least 1").with_accepted("an integer >= 1")
+            );
         }
         if params.data.as_os_str().is_empty() {
             return Err(ParamError::field("data", "is empty").with_accepted("a dataset folder"));
         }
         if let Some(generate) = &params.generate {
-            parse_size(&generate.camera_size).map_err(|message| ParamError::field("generate", message).with_accepted("camera_size: WxH, e.g. 400x224"))?;
+            parse_size(&generate.camera_size).map_err(|message| {
+                ParamError::field("generate", message)
+                    .with_accepted("camera_size: WxH, e.g. 400x224")
+            })?;
             if !(generate.seconds > 0.0 && generate.seconds <= 600.0) || generate.scenes == 0 {
-                return Err(ParamError::field("generate", "needs scenes >= 1 and 0 < seconds <= 600"));
+                return Err(ParamError::field(
+                    "generate",
+                    "needs scenes >= 1 and 0 < seconds <= 600",
+                ));
             }
         }
-        Ok(Self { params, dataset: None, indices: Vec::new(), cursor: 0, prefetch: None })
+        Ok(Self {
+            params,
+            dataset: None,
+            indices: Vec::new(),
+            cursor: 0,
+            prefetch: None,
+        })
     }
 
     fn start_prefetch(&mut self) {
-        let (Some(dataset), Some(&index)) = (&self.dataset, self.indices.get(self.cursor)) else { return };
+        let (Some(dataset), Some(&index)) = (&self.dataset, self.indices.get(self.cursor)) else {
+            return;
+        };
         let dataset = Arc::clone(dataset);
         if let Ok(handle) = spawn_io(move || dataset.fetch(index)) {
             self.prefetch = Some((index, handle));
@@ -131,9 +159,17 @@ impl DatasetSource {
 
 /// Parses `i/n`.
 pub fn parse_shard(text: &str) -> Result<(usize, usize), String> {
-    let (i, n) = text.split_once('/').ok_or_else(|| format!("'{text}' is not I/N"))?;
-    let i: usize = i.trim().parse().map_err(|_| format!("'{i}' is not a shard index"))?;
-    let n: usize = n.trim().parse().map_err(|_| format!("'{n}' is not a shard count"))?;
+    let (i, n) = text
+        .split_once('/')
+        .ok_or_else(|| format!("'{text}' is not I/N"))?;
+    let i: usize = i
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{i}' is not a shard index"))?;
+    let n: usize = n
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{n}' is not a shard count"))?;
     if n == 0 || i >= n {
         return Err(format!("shard {i}/{n} needs 0 <= I < N"));
     }
@@ -143,7 +179,8 @@ pub fn parse_shard(text: &str) -> Result<(usize, usize), String> {
 impl Source for DatasetSource {
     fn start(&mut self) -> Result<SourceInfo, NodeError> {
         if let (Some(generate), false) = (&self.params.generate, self.params.data.exists()) {
-            let (camera_width, camera_height) = parse_size(&generate.camera_size).map_err(NodeError::fatal)?;
+            let (camera_width, camera_height) =
+                parse_size(&generate.camera_size).map_err(NodeError::fatal)?;
             let config = crate::synth::SynthConfig {
                 seed: generate.seed,
                 scenes: generate.scenes,
@@ -152,14 +189,22 @@ impl Source for DatasetSource {
                 camera_height,
                 ..Default::default()
             };
-            tracing::info!("generating synthetic dataset in {}", self.params.data.display());
+            tracing::info!(
+                "generating synthetic dataset in {}",
+                self.params.data.display()
+            );
             // Generate into a sibling folder and rename, so an interrupted run leaves no
             // half-made dataset behind for the next run to trust.
             let staging = self.params.data.with_extension("partial");
             let _ = std::fs::remove_dir_all(&staging);
-            crate::synth::generate(&staging, &config, |_, _| {}).map_err(|e| NodeError::fatal_from(&e))?;
-            std::fs::rename(&staging, &self.params.data)
-                .map_err(|e| NodeError::fatal(format!("{}: cannot move generated dataset into place: {e}", self.params.data.display())))?;
+            crate::synth::generate(&staging, &config, |_, _| {})
+                .map_err(|e| NodeError::fatal_from(&e))?;
+            std::fs::rename(&staging, &self.params.data).map_err(|e| {
+                NodeError::fatal(format!(
+                    "{}: cannot move generated dataset into place: {e}",
+                    self.params.data.display()
+                ))
+            })?;
         }
         let options = DatasetOptions {
             format: self.params.format,
@@ -169,8 +214,15 @@ impl Source for DatasetSource {
             non_finite: self.params.non_finite,
             skip_images: self.params.skip_images,
         };
-        let dataset = Dataset::open(&self.params.data, &options).map_err(|e| NodeError::fatal_from(&e))?;
-        let shard = self.params.shard.as_deref().map(parse_shard).transpose().map_err(NodeError::fatal)?;
+        let dataset =
+            Dataset::open(&self.params.data, &options).map_err(|e| NodeError::fatal_from(&e))?;
+        let shard = self
+            .params
+            .shard
+            .as_deref()
+            .map(parse_shard)
+            .transpose()
+            .map_err(NodeError::fatal)?;
         let scene_names = dataset.scene_names();
         let mut scene_order: Vec<&str> = Vec::new();
         for name in &scene_names {
@@ -180,7 +232,10 @@ impl Source for DatasetSource {
         }
         let mut indices: Vec<usize> = (0..dataset.len())
             .filter(|&i| match shard {
-                Some((k, n)) => scene_order.iter().position(|s| *s == scene_names[i]).is_some_and(|p| p % n == k),
+                Some((k, n)) => scene_order
+                    .iter()
+                    .position(|s| *s == scene_names[i])
+                    .is_some_and(|p| p % n == k),
                 None => true,
             })
             .skip(self.params.start)
@@ -200,16 +255,24 @@ impl Source for DatasetSource {
     }
 
     fn next(&mut self, out: &mut Outputs) -> Result<Option<i64>, NodeError> {
-        let Some(dataset) = self.dataset.clone() else { return Ok(None) };
-        let Some(&index) = self.indices.get(self.cursor) else { return Ok(None) };
+        let Some(dataset) = self.dataset.clone() else {
+            return Ok(None);
+        };
+        let Some(&index) = self.indices.get(self.cursor) else {
+            return Ok(None);
+        };
         self.cursor += 1;
         let fetched = match self.prefetch.take() {
-            Some((prefetched, handle)) if prefetched == index => wait(handle).map_err(|e| NodeError::fatal_from(&e))?,
+            Some((prefetched, handle)) if prefetched == index => {
+                wait(handle).map_err(|e| NodeError::fatal_from(&e))?
+            }
             _ => dataset.fetch(index),
         };
         // Read the next frame's files while this one decodes.
         self.start_prefetch();
-        let frame: SensorFrame = dataset.decode(fetched.map_err(|e| NodeError::item_from(&e))?).map_err(|e| NodeError::item_from(&e))?;
+        let frame: SensorFrame = dataset
+            .decode(fetched.map_err(|e| NodeError::item_from(&e))?)
+            .map_err(|e| NodeError::item_from(&e))?;
         let time_of_validity = frame.time_of_validity_us;
         out.set_time_of_validity(time_of_validity);
         if out.is_connected("images") {
@@ -225,10 +288,56 @@ impl Source for DatasetSource {
 
 pub fn register(registry: &mut Registry) {
     registry.register(
-        KindSpec::source("dataset_source", "replays a nuScenes-layout, synthetic or KITTI odometry dataset as sensor frames")
-            .output(PortSpec::new::<SensorFrame>("frame"))
-            .output(PortSpec::new::<ImageSet>("images"))
-            .output(PortSpec::new::<PointCloud>("lidar")),
+        KindSpec::source(
+            "dataset_source",
+            "replays a nuScenes-layout, synthetic or KITTI odometry dataset as sensor frames",
+        )
+        .output(PortSpec::new::<SensorFrame>("frame"))
+        .output(PortSpec::new::<ImageSet>("images"))
+        .output(PortSpec::new::<PointCloud>("lidar")),
         |params: DatasetSourceParams| Ok(Node::Source(Box::new(DatasetSource::new(params)?))),
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shard_and_size_parsing() {
+        assert_eq!(parse_shard("1/4"), Ok((1, 4)));
+        assert!(parse_shard("4/4").unwrap_err().contains("0 <= I < N"));
+        assert!(
+            parse_shard("a/4").is_err() && parse_shard("3").is_err() && parse_shard("0/0").is_err()
+        );
+        assert_eq!(parse_size("400x224"), Ok((400, 224)));
+        assert!(
+            parse_size("400").is_err() && parse_size("8x8").is_err() && parse_size("ax2").is_err()
+        );
+    }
+
+    #[test]
+    fn bad_source_parameters_are_refused() {
+        let mut registry = Registry::new();
+        register(&mut registry);
+        let kind = registry.get("dataset_source").unwrap();
+        let field = |params: serde_json::Value| kind.build(&params).err().and_then(|e| e.field);
+        assert_eq!(
+            field(serde_json::json!({"data": "d", "repeat": 0})).as_deref(),
+            Some("repeat")
+        );
+        assert_eq!(
+            field(serde_json::json!({"data": "d", "shard": "2/2"})).as_deref(),
+            Some("shard")
+        );
+        assert_eq!(
+            field(serde_json::json!({"data": "d", "generate": {"camera_size": "big"}})).as_deref(),
+            Some("generate")
+        );
+        assert_eq!(
+            field(serde_json::json!({"data": "d", "format": "waymo"})).as_deref(),
+            Some("format")
+        );
+        assert_eq!(field(serde_json::json!({})).as_deref(), Some("data"));
+    }
 }

@@ -16,7 +16,10 @@ fn reads_scans_poses_and_times() {
     assert_eq!(kitti.len(), 6);
     // 000000.bin is 1,994,688 bytes of float32 x 4.
     let frame0 = kitti.decode(kitti.fetch(0).unwrap()).unwrap();
-    assert_eq!(frame0.lidar.len() + frame0.lidar.dropped_non_finite, 1_994_688 / 16);
+    assert_eq!(
+        frame0.lidar.len() + frame0.lidar.dropped_non_finite,
+        1_994_688 / 16
+    );
     assert_eq!(frame0.time_of_validity_us, 0);
     // Frame 0's pose is the identity (up to the file's rounding).
     assert!(frame0.global_from_ego.translation.length() < 1e-6); // P_0 is stored to 7 digits
@@ -25,9 +28,15 @@ fn reads_scans_poses_and_times() {
     // Camera 0 moved +0.8587 m along its z (forward) axis; the velodyne's x is forward,
     // so the velodyne pose moves ~0.86 m along +x: Tr^-1 * P_1 * Tr.
     let t = frame1.global_from_ego.translation;
-    assert!((t.x - 0.858).abs() < 0.01 && t.y.abs() < 0.1 && t.z.abs() < 0.05, "{t}");
+    assert!(
+        (t.x - 0.858).abs() < 0.01 && t.y.abs() < 0.1 && t.z.abs() < 0.05,
+        "{t}"
+    );
     let action = frame0.action.unwrap();
-    assert!((action.speed_mps - t.x / 0.103736).abs() < 0.2, "{action:?}");
+    assert!(
+        (action.speed_mps - t.x / 0.103736).abs() < 0.2,
+        "{action:?}"
+    );
 }
 
 #[test]
@@ -35,9 +44,16 @@ fn velodyne_pose_is_tr_inverse_p_tr() {
     // By hand: Tr and P_1 from the files; the conjugation must agree with the reader's pose.
     let read = |name: &str| std::fs::read_to_string(data().join(name)).unwrap();
     let parse = |line: &str| -> glam::DAffine3 {
-        let v: Vec<f64> = line.split_whitespace().map(|t| t.parse().unwrap()).collect();
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .map(|t| t.parse().unwrap())
+            .collect();
         glam::DAffine3 {
-            matrix3: glam::DMat3::from_cols(DVec3::new(v[0], v[4], v[8]), DVec3::new(v[1], v[5], v[9]), DVec3::new(v[2], v[6], v[10])),
+            matrix3: glam::DMat3::from_cols(
+                DVec3::new(v[0], v[4], v[8]),
+                DVec3::new(v[1], v[5], v[9]),
+                DVec3::new(v[2], v[6], v[10]),
+            ),
             translation: DVec3::new(v[3], v[7], v[11]),
         }
     };
@@ -74,23 +90,51 @@ fn malformed_calib_poses_and_times_name_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
     copy_sequence(dir.path());
     std::fs::write(dir.path().join("calib.txt"), "Tr: 1 2 3\n").unwrap();
-    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop).err().unwrap().to_string();
-    assert!(error.contains("calib.txt") && error.contains("'Tr'") && error.contains("needs 12"), "{error}");
+    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        error.contains("calib.txt") && error.contains("'Tr'") && error.contains("needs 12"),
+        "{error}"
+    );
 
     copy_sequence(dir.path());
     std::fs::write(dir.path().join("calib.txt"), "P0: 1 2\n").unwrap();
-    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop).err().unwrap().to_string();
-    assert!(error.contains("calib.txt") && error.contains("missing"), "{error}");
+    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        error.contains("calib.txt") && error.contains("missing"),
+        "{error}"
+    );
 
     copy_sequence(dir.path());
-    std::fs::write(dir.path().join("poses.txt"), "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 x 0 1 0 0 0 0 1 0\n").unwrap();
-    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop).err().unwrap().to_string();
-    assert!(error.contains("poses.txt") && error.contains("line 2") && error.contains("'x'"), "{error}");
+    std::fs::write(
+        dir.path().join("poses.txt"),
+        "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 x 0 1 0 0 0 0 1 0\n",
+    )
+    .unwrap();
+    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        error.contains("poses.txt") && error.contains("line 2") && error.contains("'x'"),
+        "{error}"
+    );
 
     copy_sequence(dir.path());
     std::fs::write(dir.path().join("times.txt"), "0.0\n0.2\n0.1\n").unwrap();
-    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop).err().unwrap().to_string();
-    assert!(error.contains("times.txt") && error.contains("line 3") && error.contains("non-monotonic"), "{error}");
+    let error = Kitti::open(dir.path(), NonFinitePolicy::Drop)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        error.contains("times.txt") && error.contains("line 3") && error.contains("non-monotonic"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -101,6 +145,13 @@ fn truncated_scan_is_an_error_naming_the_file() {
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
     let kitti = Kitti::open(dir.path(), NonFinitePolicy::Drop).unwrap();
-    let error = kitti.decode(kitti.fetch(1).unwrap()).err().unwrap().to_string();
-    assert!(error.contains("000001.bin") && error.contains("truncated"), "{error}");
+    let error = kitti
+        .decode(kitti.fetch(1).unwrap())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        error.contains("000001.bin") && error.contains("truncated"),
+        "{error}"
+    );
 }

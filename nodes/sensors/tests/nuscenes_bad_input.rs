@@ -39,14 +39,20 @@ fn table(dir: &Path, name: &str) -> PathBuf {
 
 fn edit_table(dir: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value)) {
     let path = table(dir, name);
-    let mut value: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let mut value: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
     edit(&mut value);
     std::fs::write(&path, serde_json::to_vec(&value).unwrap()).unwrap();
 }
 
 fn lidar_file(dir: &Path) -> PathBuf {
     let folder = dir.join("samples/LIDAR_TOP");
-    std::fs::read_dir(folder).unwrap().next().unwrap().unwrap().path()
+    std::fs::read_dir(folder)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path()
 }
 
 fn open(dir: &Path) -> Result<NuScenes, SensorError> {
@@ -58,7 +64,10 @@ fn missing_table_names_the_file() {
     let dir = sample_copy();
     std::fs::remove_file(table(dir.path(), "ego_pose")).unwrap();
     let error = open(dir.path()).err().unwrap().to_string();
-    assert!(error.contains("ego_pose.json") && error.contains("cannot read"), "{error}");
+    assert!(
+        error.contains("ego_pose.json") && error.contains("cannot read"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -67,7 +76,10 @@ fn missing_sensor_file_names_the_file() {
     std::fs::remove_file(lidar_file(dir.path())).unwrap();
     let dataset = open(dir.path()).unwrap();
     let error = dataset.read(0).err().unwrap().to_string();
-    assert!(error.contains("LIDAR_TOP") && error.contains("cannot read"), "{error}");
+    assert!(
+        error.contains("LIDAR_TOP") && error.contains("cannot read"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -77,7 +89,12 @@ fn truncated_pcd_bin_is_reported_with_its_length() {
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() - 7]).unwrap();
     let error = open(dir.path()).unwrap().read(0).err().unwrap().to_string();
-    assert!(error.contains(".pcd.bin") && error.contains("not a multiple of 20") && error.contains("13 trailing"), "{error}");
+    assert!(
+        error.contains(".pcd.bin")
+            && error.contains("not a multiple of 20")
+            && error.contains("13 trailing"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -91,16 +108,31 @@ fn nan_and_inf_points_are_dropped_and_counted_or_rejected() {
     let frame = open(dir.path()).unwrap().read(0).unwrap();
     assert_eq!(frame.lidar.len(), 34_688 - 2);
     assert_eq!(frame.lidar.dropped_non_finite, 2);
-    let strict = NuScenes::open(dir.path(), NuScenesOptions { non_finite: NonFinitePolicy::Error, ..Default::default() }).unwrap();
+    let strict = NuScenes::open(
+        dir.path(),
+        NuScenesOptions {
+            non_finite: NonFinitePolicy::Error,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     let error = strict.read(0).err().unwrap().to_string();
-    assert!(error.contains(".pcd.bin") && error.contains("point 0 has a non-finite value"), "{error}");
+    assert!(
+        error.contains(".pcd.bin") && error.contains("point 0 has a non-finite value"),
+        "{error}"
+    );
 }
 
 #[test]
 fn corrupt_jpeg_names_the_image() {
     let dir = sample_copy();
     let folder = dir.path().join("samples/CAM_FRONT");
-    let path = std::fs::read_dir(folder).unwrap().next().unwrap().unwrap().path();
+    let path = std::fs::read_dir(folder)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
     let mut bytes = std::fs::read(&path).unwrap();
     // Garbage over the SOI marker and the first segments.
     for (i, byte) in bytes.iter_mut().take(600).enumerate() {
@@ -108,7 +140,10 @@ fn corrupt_jpeg_names_the_image() {
     }
     std::fs::write(&path, &bytes).unwrap();
     let error = open(dir.path()).unwrap().read(0).err().unwrap().to_string();
-    assert!(error.contains("CAM_FRONT") && error.contains("corrupt image"), "{error}");
+    assert!(
+        error.contains("CAM_FRONT") && error.contains("corrupt image"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -122,7 +157,10 @@ fn unknown_camera_channel_is_named() {
         }
     });
     let error = open(dir.path()).err().unwrap().to_string();
-    assert!(error.contains("sensor.json") && error.contains("'channel'") && error.contains("CAM_ROOF"), "{error}");
+    assert!(
+        error.contains("sensor.json") && error.contains("'channel'") && error.contains("CAM_ROOF"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -132,7 +170,12 @@ fn dangling_token_names_table_record_and_field() {
         rows[2]["ego_pose_token"] = "0000deadbeef".into();
     });
     let error = open(dir.path()).err().unwrap().to_string();
-    assert!(error.contains("sample_data.json") && error.contains("'ego_pose_token'") && error.contains("0000deadbeef"), "{error}");
+    assert!(
+        error.contains("sample_data.json")
+            && error.contains("'ego_pose_token'")
+            && error.contains("0000deadbeef"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -148,7 +191,12 @@ fn non_monotonic_timestamps_are_rejected() {
         rows.as_array_mut().unwrap().push(second);
     });
     let error = open(dir.path()).err().unwrap().to_string();
-    assert!(error.contains("sample.json") && error.contains("'timestamp'") && error.contains("not strictly increasing"), "{error}");
+    assert!(
+        error.contains("sample.json")
+            && error.contains("'timestamp'")
+            && error.contains("not strictly increasing"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -156,5 +204,8 @@ fn malformed_table_json_names_the_table() {
     let dir = sample_copy();
     std::fs::write(table(dir.path(), "calibrated_sensor"), "[{\"token\": 3}]").unwrap();
     let error = open(dir.path()).err().unwrap().to_string();
-    assert!(error.contains("calibrated_sensor.json") && error.contains("not valid JSON for table"), "{error}");
+    assert!(
+        error.contains("calibrated_sensor.json") && error.contains("not valid JSON for table"),
+        "{error}"
+    );
 }

@@ -35,7 +35,10 @@ fn all_files(root: &Path) -> BTreeMap<String, Vec<u8>> {
             if path.is_dir() {
                 stack.push(path);
             } else {
-                files.insert(path.strip_prefix(root).unwrap().display().to_string(), std::fs::read(&path).unwrap());
+                files.insert(
+                    path.strip_prefix(root).unwrap().display().to_string(),
+                    std::fs::read(&path).unwrap(),
+                );
             }
         }
     }
@@ -44,35 +47,74 @@ fn all_files(root: &Path) -> BTreeMap<String, Vec<u8>> {
 
 #[test]
 fn same_seed_gives_byte_identical_files_and_seeds_differ() {
-    let (a, b, c) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let (a, b, c) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
     generate(a.path(), &tiny(5), |_, _| {}).unwrap();
     generate(b.path(), &tiny(5), |_, _| {}).unwrap();
     generate(c.path(), &tiny(6), |_, _| {}).unwrap();
-    let (fa, fb, fc) = (all_files(a.path()), all_files(b.path()), all_files(c.path()));
+    let (fa, fb, fc) = (
+        all_files(a.path()),
+        all_files(b.path()),
+        all_files(c.path()),
+    );
     assert!(fa.len() > 80, "{} files", fa.len()); // 12 ticks x 7 sensors + tables
     assert_eq!(fa, fb, "same seed, same bytes");
-    assert_ne!(fa.get("v1.0-synth/ego_pose.json"), fc.get("v1.0-synth/ego_pose.json"), "scenes differ by seed");
+    assert_ne!(
+        fa.get("v1.0-synth/ego_pose.json"),
+        fc.get("v1.0-synth/ego_pose.json"),
+        "scenes differ by seed"
+    );
 }
 
 #[test]
 fn the_reader_loads_it_with_keyframes_at_2hz_and_sweeps_at_12hz() {
     let dir = tempfile::tempdir().unwrap();
-    let summary = generate(dir.path(), &SynthConfig { seconds: 1.5, ..tiny(1) }, |_, _| {}).unwrap();
+    let summary = generate(
+        dir.path(),
+        &SynthConfig {
+            seconds: 1.5,
+            ..tiny(1)
+        },
+        |_, _| {},
+    )
+    .unwrap();
     assert_eq!((summary.frames, summary.keyframes), (18, 3));
     let keyframes = NuScenes::open(dir.path(), NuScenesOptions::default()).unwrap();
     assert_eq!(keyframes.version(), VERSION);
     assert_eq!(keyframes.len(), 3);
-    let sweeps = NuScenes::open(dir.path(), NuScenesOptions { sweeps: true, ..Default::default() }).unwrap();
+    let sweeps = NuScenes::open(
+        dir.path(),
+        NuScenesOptions {
+            sweeps: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     assert_eq!(sweeps.len(), 18);
     let frame = sweeps.read(1).unwrap();
     assert_eq!(frame.cameras.len(), 6);
-    assert_eq!((frame.cameras[0].image.width(), frame.cameras[0].image.height()), (96, 54));
+    assert_eq!(
+        (
+            frame.cameras[0].image.width(),
+            frame.cameras[0].image.height()
+        ),
+        (96, 54)
+    );
     assert!(frame.lidar.len() > 1000);
     let second = sweeps.read(2).unwrap();
-    assert_eq!(second.time_of_validity_us - frame.time_of_validity_us, 83_333);
+    assert_eq!(
+        second.time_of_validity_us - frame.time_of_validity_us,
+        83_333
+    );
     // Actions derived from poses: a forward speed in a town's range.
     let action = frame.action.unwrap();
-    assert!(action.speed_mps > 0.5 && action.speed_mps < 20.0, "{action:?}");
+    assert!(
+        action.speed_mps > 0.5 && action.speed_mps < 20.0,
+        "{action:?}"
+    );
     assert!((action.dt_s - 0.083333).abs() < 1e-6);
 }
 
@@ -92,8 +134,14 @@ fn every_lidar_point_lies_on_the_surface_an_exact_ray_cast_hits() {
         let range = local.length();
         let direction = global_from_lidar.transform_vector3(local / range);
         // Reference: every primitive tested, no grid.
-        let hit = snapshot.cast_brute_force(&Ray { origin, direction }, 200.0).expect("a return must have a surface");
-        assert!((hit.t - range).abs() < 1e-3, "range {range} vs analytic {}", hit.t);
+        let hit = snapshot
+            .cast_brute_force(&Ray { origin, direction }, 200.0)
+            .expect("a return must have a surface");
+        assert!(
+            (hit.t - range).abs() < 1e-3,
+            "range {range} vs analytic {}",
+            hit.t
+        );
         if hit.material != bevworld_sensors::synth::world::Material::Asphalt {
             hit_solids += 1;
         }
@@ -119,7 +167,11 @@ fn noise_and_drop_change_ranges_and_counts() {
 #[test]
 fn annotated_boxes_contain_every_pixel_of_their_vehicle() {
     let dir = tempfile::tempdir().unwrap();
-    let config = SynthConfig { camera_width: 320, camera_height: 180, ..tiny(3) };
+    let config = SynthConfig {
+        camera_width: 320,
+        camera_height: 180,
+        ..tiny(3)
+    };
     generate(dir.path(), &config, |_, _| {}).unwrap();
     let tables = dir.path().join(VERSION);
     let (_, annotations) = read_table::<SampleAnnotation>(&tables, "sample_annotation").unwrap();
@@ -129,15 +181,27 @@ fn annotated_boxes_contain_every_pixel_of_their_vehicle() {
     let parked_from = config.agents as u32 + 1;
     let mut checked_pixels = 0usize;
     for camera in &frame.cameras {
-        let mount = CAMERAS.iter().find(|m| m.channel == camera.channel).unwrap();
+        let mount = CAMERAS
+            .iter()
+            .find(|m| m.channel == camera.channel)
+            .unwrap();
         let global_from_camera = camera.global_from_ego * mount.ego_from_camera();
-        let (_, ids) = render_camera(&world.snapshot(camera.timestamp_us), &camera.intrinsics, &global_from_camera, 250.0);
+        let (_, ids) = render_camera(
+            &world.snapshot(camera.timestamp_us),
+            &camera.intrinsics,
+            &global_from_camera,
+            250.0,
+        );
         let camera_from_global = global_from_camera.inverse();
         for (instance, body, moving) in world.vehicles_at(frame.time_of_validity_us) {
             if moving || instance < parked_from {
                 continue; // moving cars move between the LiDAR and camera trigger times
             }
-            let Some(annotation) = annotations.iter().find(|a| a.sample_token == frame.sample_token && (DVec2::new(a.translation[0], a.translation[1]) - body.center).length() < 1e-9) else {
+            let Some(annotation) = annotations.iter().find(|a| {
+                a.sample_token == frame.sample_token
+                    && (DVec2::new(a.translation[0], a.translation[1]) - body.center).length()
+                        < 1e-9
+            }) else {
                 continue;
             };
             // The annotation's 8 corners, projected; every pixel of the car must fall inside.
@@ -146,11 +210,30 @@ fn annotated_boxes_contain_every_pixel_of_their_vehicle() {
             let mut lo = DVec2::splat(f64::INFINITY);
             let mut hi = DVec2::splat(f64::NEG_INFINITY);
             let mut in_front = true;
-            for (sx, sy, sz) in [(-1., -1., 0.), (1., -1., 0.), (-1., 1., 0.), (1., 1., 0.), (-1., -1., 1.), (1., -1., 1.), (-1., 1., 1.), (1., 1., 1.)] {
+            for (sx, sy, sz) in [
+                (-1., -1., 0.),
+                (1., -1., 0.),
+                (-1., 1., 0.),
+                (1., 1., 0.),
+                (-1., -1., 1.),
+                (1., -1., 1.),
+                (-1., 1., 1.),
+                (1., 1., 1.),
+            ] {
                 let local = DVec2::new(sx * l / 2.0, sy * w / 2.0);
-                let rotated = DVec2::new(local.x * yaw.cos() - local.y * yaw.sin(), local.x * yaw.sin() + local.y * yaw.cos());
-                let corner = DVec3::new(annotation.translation[0] + rotated.x, annotation.translation[1] + rotated.y, sz * h);
-                match camera.intrinsics.project(camera_from_global.transform_point3(corner)) {
+                let rotated = DVec2::new(
+                    local.x * yaw.cos() - local.y * yaw.sin(),
+                    local.x * yaw.sin() + local.y * yaw.cos(),
+                );
+                let corner = DVec3::new(
+                    annotation.translation[0] + rotated.x,
+                    annotation.translation[1] + rotated.y,
+                    sz * h,
+                );
+                match camera
+                    .intrinsics
+                    .project(camera_from_global.transform_point3(corner))
+                {
                     Some(uv) => {
                         lo = lo.min(uv);
                         hi = hi.max(uv);
@@ -167,19 +250,33 @@ fn annotated_boxes_contain_every_pixel_of_their_vehicle() {
                     continue;
                 }
                 let (u, v) = ((index % width) as f64 + 0.5, (index / width) as f64 + 0.5);
-                assert!(u >= lo.x - 1.0 && u <= hi.x + 1.0 && v >= lo.y - 1.0 && v <= hi.y + 1.0,
-                    "{}: pixel ({u}, {v}) of car {instance} outside its box [{lo}, {hi}]", camera.channel.name());
+                assert!(
+                    u >= lo.x - 1.0 && u <= hi.x + 1.0 && v >= lo.y - 1.0 && v <= hi.y + 1.0,
+                    "{}: pixel ({u}, {v}) of car {instance} outside its box [{lo}, {hi}]",
+                    camera.channel.name()
+                );
                 checked_pixels += 1;
             }
         }
     }
-    assert!(checked_pixels > 100, "only {checked_pixels} vehicle pixels checked");
+    assert!(
+        checked_pixels > 100,
+        "only {checked_pixels} vehicle pixels checked"
+    );
 }
 
 #[test]
 fn recorded_controls_replay_the_ego_poses() {
     let dir = tempfile::tempdir().unwrap();
-    generate(dir.path(), &SynthConfig { seconds: 3.0, ..tiny(9) }, |_, _| {}).unwrap();
+    generate(
+        dir.path(),
+        &SynthConfig {
+            seconds: 3.0,
+            ..tiny(9)
+        },
+        |_, _| {},
+    )
+    .unwrap();
     let tables = dir.path().join(VERSION);
     let (_, controls) = read_table::<serde_json::Value>(&tables, "ego_control").unwrap();
     let (_, data) = read_table::<SampleData>(&tables, "sample_data").unwrap();
@@ -203,11 +300,19 @@ fn recorded_controls_replay_the_ego_poses() {
     let mut travelled = 0.0;
     for (k, control) in controls.iter().enumerate() {
         let pose = lidar_poses[k];
-        let error = (state.position - DVec2::new(pose.translation[0], pose.translation[1])).length();
+        let error =
+            (state.position - DVec2::new(pose.translation[0], pose.translation[1])).length();
         assert!(error < 1e-6, "tick {k}: replayed position off by {error} m");
         let previous = state.position;
-        state = state.advance(control["acceleration"].as_f64().unwrap(), control["steering"].as_f64().unwrap(), 1.0 / 12.0);
+        state = state.advance(
+            control["acceleration"].as_f64().unwrap(),
+            control["steering"].as_f64().unwrap(),
+            1.0 / 12.0,
+        );
         travelled += (state.position - previous).length();
     }
-    assert!(travelled > 5.0, "the ego should drive, travelled {travelled} m");
+    assert!(
+        travelled > 5.0,
+        "the ego should drive, travelled {travelled} m"
+    );
 }

@@ -6,7 +6,8 @@ use std::path::Path;
 
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{
-    Addable, ElementDef, Encoding, Ply, PropertyAccess, PropertyAccessResult, PropertyDef, PropertyType, ScalarType,
+    Addable, ElementDef, Encoding, Ply, PropertyAccess, PropertyAccessResult, PropertyDef,
+    PropertyType, ScalarType,
 };
 use ply_rs_bw::writer::Writer;
 use serde::{Deserialize, Serialize};
@@ -23,7 +24,10 @@ pub enum PlyEncoding {
 #[derive(Debug, Error)]
 pub enum PlyError {
     #[error("{path}: cannot read: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{path}: not a valid PLY file: {message}")]
     Format { path: String, message: String },
     #[error("{path}: PLY has no '{field}' property on its vertex element")]
@@ -42,7 +46,13 @@ pub struct PlyPoint {
 
 impl PlyPoint {
     pub fn new(x: f32, y: f32, z: f32, intensity: f32) -> Self {
-        Self { x, y, z, intensity, seen: 0 }
+        Self {
+            x,
+            y,
+            z,
+            intensity,
+            seen: 0,
+        }
     }
 
     fn set(&mut self, name: &str, value: f32) -> PropertyAccessResult {
@@ -92,7 +102,11 @@ impl PropertyAccess for PlyPoint {
 }
 
 /// Encodes points as a PLY file.
-pub fn encode_ply(points: &[PlyPoint], encoding: PlyEncoding, comment: Option<&str>) -> Result<Vec<u8>, PlyError> {
+pub fn encode_ply(
+    points: &[PlyPoint],
+    encoding: PlyEncoding,
+    comment: Option<&str>,
+) -> Result<Vec<u8>, PlyError> {
     let mut ply = Ply::<PlyPoint>::new();
     ply.header.encoding = match encoding {
         PlyEncoding::BinaryLittleEndian => Encoding::BinaryLittleEndian,
@@ -103,35 +117,54 @@ pub fn encode_ply(points: &[PlyPoint], encoding: PlyEncoding, comment: Option<&s
     }
     let mut vertex = ElementDef::new("vertex".to_string());
     for name in ["x", "y", "z", "intensity"] {
-        vertex.properties.add(PropertyDef::new(name.to_string(), PropertyType::Scalar(ScalarType::Float)));
+        vertex.properties.add(PropertyDef::new(
+            name.to_string(),
+            PropertyType::Scalar(ScalarType::Float),
+        ));
     }
     ply.header.elements.add(vertex);
     ply.payload.insert("vertex".to_string(), points.to_vec());
     let mut bytes = Vec::with_capacity(points.len() * 16 + 256);
     Writer::new()
         .write_ply(&mut bytes, &mut ply)
-        .map_err(|error| PlyError::Format { path: "<memory>".into(), message: error.to_string() })?;
+        .map_err(|error| PlyError::Format {
+            path: "<memory>".into(),
+            message: error.to_string(),
+        })?;
     Ok(bytes)
 }
 
 /// Reads the vertices of a PLY file; `x`, `y`, `z` are required, intensity defaults to 0.
 pub fn read_ply(path: &Path) -> Result<Vec<PlyPoint>, PlyError> {
     let name = path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|source| PlyError::Io { path: name.clone(), source })?;
+    let file = std::fs::File::open(path).map_err(|source| PlyError::Io {
+        path: name.clone(),
+        source,
+    })?;
     decode_ply(BufReader::new(file), &name)
 }
 
 pub fn decode_ply(mut reader: impl Read, name: &str) -> Result<Vec<PlyPoint>, PlyError> {
     let ply = Parser::<PlyPoint>::new()
         .read_ply(&mut reader)
-        .map_err(|error| PlyError::Format { path: name.to_string(), message: error.to_string() })?;
-    let vertex_def = ply.header.elements.get("vertex").ok_or_else(|| PlyError::Format {
-        path: name.to_string(),
-        message: "no 'vertex' element".into(),
-    })?;
+        .map_err(|error| PlyError::Format {
+            path: name.to_string(),
+            message: error.to_string(),
+        })?;
+    let vertex_def = ply
+        .header
+        .elements
+        .get("vertex")
+        .ok_or_else(|| PlyError::Format {
+            path: name.to_string(),
+            message: "no 'vertex' element".into(),
+        })?;
     for field in ["x", "y", "z"] {
         if !vertex_def.properties.contains_key(field) {
-            return Err(PlyError::MissingField { path: name.to_string(), field });
+            return Err(PlyError::MissingField {
+                path: name.to_string(),
+                field,
+            });
         }
     }
     Ok(ply.payload.get("vertex").cloned().unwrap_or_default())
@@ -143,7 +176,10 @@ mod tests {
 
     #[test]
     fn binary_and_ascii_round_trip() {
-        let points = vec![PlyPoint::new(1.5, -2.0, 0.25, 7.0), PlyPoint::new(0.0, 3.0, -1.0, 0.5)];
+        let points = vec![
+            PlyPoint::new(1.5, -2.0, 0.25, 7.0),
+            PlyPoint::new(0.0, 3.0, -1.0, 0.5),
+        ];
         for encoding in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii] {
             let bytes = encode_ply(&points, encoding, Some("test")).unwrap();
             let header = String::from_utf8_lossy(&bytes[..bytes.len().min(200)]).to_string();
@@ -160,7 +196,10 @@ mod tests {
 
     #[test]
     fn garbage_and_missing_fields_are_errors() {
-        assert!(matches!(decode_ply(&b"not a ply"[..], "bad.ply"), Err(PlyError::Format { .. })));
+        assert!(matches!(
+            decode_ply(&b"not a ply"[..], "bad.ply"),
+            Err(PlyError::Format { .. })
+        ));
         let no_z = b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n";
         let error = decode_ply(&no_z[..], "noz.ply").unwrap_err();
         assert!(error.to_string().contains("'z'"), "{error}");

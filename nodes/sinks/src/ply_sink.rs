@@ -48,22 +48,40 @@ impl Sink for PlySink {
         let cloud = inputs.get::<PointCloud>("cloud")?;
         let frame = inputs.header().map(|h| h.seq).unwrap_or(0);
         let points: Vec<PlyPoint> = match self.params.frame {
-            CloudFrame::Sensor => cloud.points.iter().map(|p| PlyPoint::new(p.x, p.y, p.z, p.intensity)).collect(),
+            CloudFrame::Sensor => cloud
+                .points
+                .iter()
+                .map(|p| PlyPoint::new(p.x, p.y, p.z, p.intensity))
+                .collect(),
             CloudFrame::Ego => cloud
                 .points
                 .iter()
                 .map(|p| {
-                    let q = cloud.ego_from_lidar.transform_point3(DVec3::new(p.x.into(), p.y.into(), p.z.into()));
+                    let q = cloud.ego_from_lidar.transform_point3(DVec3::new(
+                        p.x.into(),
+                        p.y.into(),
+                        p.z.into(),
+                    ));
                     PlyPoint::new(q.x as f32, q.y as f32, q.z as f32, p.intensity)
                 })
                 .collect(),
         };
-        let comment = format!("bevworld {} frame; source {}; timestamp_us {}", match self.params.frame {
-            CloudFrame::Sensor => "sensor",
-            CloudFrame::Ego => "ego",
-        }, cloud.source_file, cloud.timestamp_us);
-        let bytes = encode_ply(&points, self.params.encoding, Some(&comment)).map_err(|error| NodeError::item(error.to_string()))?;
-        let path = self.params.out.join(format!("{frame:06}")).join(format!("{}.ply", self.params.name));
+        let comment = format!(
+            "bevworld {} frame; source {}; timestamp_us {}",
+            match self.params.frame {
+                CloudFrame::Sensor => "sensor",
+                CloudFrame::Ego => "ego",
+            },
+            cloud.source_file,
+            cloud.timestamp_us
+        );
+        let bytes = encode_ply(&points, self.params.encoding, Some(&comment))
+            .map_err(|error| NodeError::item(error.to_string()))?;
+        let path = self
+            .params
+            .out
+            .join(format!("{frame:06}"))
+            .join(format!("{}.ply", self.params.name));
         self.writes.write(path, bytes)
     }
 
@@ -74,16 +92,25 @@ impl Sink for PlySink {
 
 pub fn register(registry: &mut Registry) {
     registry.register(
-        KindSpec::sink("ply_sink", "writes point clouds as PLY (x y z intensity), binary little-endian or ASCII")
-            .input(PortSpec::new::<PointCloud>("cloud")),
+        KindSpec::sink(
+            "ply_sink",
+            "writes point clouds as PLY (x y z intensity), binary little-endian or ASCII",
+        )
+        .input(PortSpec::new::<PointCloud>("cloud")),
         |params: PlySinkParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));
             }
             if params.name.is_empty() || params.name.contains('/') {
-                return Err(ParamError::field("name", format!("'{}' is not a file name", params.name)));
+                return Err(ParamError::field(
+                    "name",
+                    format!("'{}' is not a file name", params.name),
+                ));
             }
-            Ok(Node::Sink(Box::new(PlySink { params, writes: Writes::new(8) })))
+            Ok(Node::Sink(Box::new(PlySink {
+                params,
+                writes: Writes::new(8),
+            })))
         },
     );
 }

@@ -36,8 +36,13 @@ impl Sink for PngSink {
             named
                 .image
                 .write_to(&mut Cursor::new(&mut bytes), ImageFormat::Png)
-                .map_err(|error| NodeError::item(format!("encoding {} as PNG: {error}", named.name)))?;
-            self.writes.write(folder.join(format!("{}{}.png", named.name, self.params.suffix)), bytes)?;
+                .map_err(|error| {
+                    NodeError::item(format!("encoding {} as PNG: {error}", named.name))
+                })?;
+            self.writes.write(
+                folder.join(format!("{}{}.png", named.name, self.params.suffix)),
+                bytes,
+            )?;
         }
         Ok(())
     }
@@ -49,12 +54,19 @@ impl Sink for PngSink {
 
 pub fn register(registry: &mut Registry) {
     registry.register(
-        KindSpec::sink("png_sink", "writes images as 8-bit RGB PNG, one folder per frame").input(PortSpec::new::<ImageSet>("images")),
+        KindSpec::sink(
+            "png_sink",
+            "writes images as 8-bit RGB PNG, one folder per frame",
+        )
+        .input(PortSpec::new::<ImageSet>("images")),
         |params: PngSinkParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));
             }
-            Ok(Node::Sink(Box::new(PngSink { params, writes: Writes::new(16) })))
+            Ok(Node::Sink(Box::new(PngSink {
+                params,
+                writes: Writes::new(16),
+            })))
         },
     );
 }

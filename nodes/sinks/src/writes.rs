@@ -15,20 +15,31 @@ pub struct Writes {
 
 impl Writes {
     pub fn new(max_in_flight: usize) -> Self {
-        Self { pending: VecDeque::new(), max_in_flight: max_in_flight.max(1), written: 0 }
+        Self {
+            pending: VecDeque::new(),
+            max_in_flight: max_in_flight.max(1),
+            written: 0,
+        }
     }
 
     /// Queues a write; waits for the oldest one first when too many are in flight.
     pub fn write(&mut self, path: PathBuf, bytes: Vec<u8>) -> Result<(), NodeError> {
         if let Some(parent) = path.parent() {
-            std::fs::create_dir_all(parent)
-                .map_err(|error| NodeError::fatal(format!("{}: cannot create folder: {error}", parent.display())))?;
+            std::fs::create_dir_all(parent).map_err(|error| {
+                NodeError::fatal(format!(
+                    "{}: cannot create folder: {error}",
+                    parent.display()
+                ))
+            })?;
         }
-        while self.pending.len() >= self.max_in_flight || self.pending.front().is_some_and(PendingWrite::is_finished) {
+        while self.pending.len() >= self.max_in_flight
+            || self.pending.front().is_some_and(PendingWrite::is_finished)
+        {
             self.wait_oldest()?;
         }
-        let pending = write_atomic(path.clone(), bytes)
-            .map_err(|error| NodeError::fatal(format!("{}: cannot start write: {error}", path.display())))?;
+        let pending = write_atomic(path.clone(), bytes).map_err(|error| {
+            NodeError::fatal(format!("{}: cannot start write: {error}", path.display()))
+        })?;
         self.pending.push_back(pending);
         Ok(())
     }
@@ -36,7 +47,9 @@ impl Writes {
     fn wait_oldest(&mut self) -> Result<(), NodeError> {
         if let Some(oldest) = self.pending.pop_front() {
             let path = oldest.path().display().to_string();
-            oldest.wait().map_err(|error| NodeError::fatal(format!("{path}: write failed: {error}")))?;
+            oldest
+                .wait()
+                .map_err(|error| NodeError::fatal(format!("{path}: write failed: {error}")))?;
             self.written += 1;
         }
         Ok(())

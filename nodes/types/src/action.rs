@@ -22,7 +22,12 @@ pub struct EgoAction {
 
 impl EgoAction {
     /// The action that takes the ego from `global_from_ego_a` (at `t_a`) to `global_from_ego_b`.
-    pub fn between(global_from_ego_a: &Pose, t_a_us: i64, global_from_ego_b: &Pose, t_b_us: i64) -> Option<Self> {
+    pub fn between(
+        global_from_ego_a: &Pose,
+        t_a_us: i64,
+        global_from_ego_b: &Pose,
+        t_b_us: i64,
+    ) -> Option<Self> {
         let dt_s = (t_b_us - t_a_us) as f64 * 1e-6;
         if !(dt_s > 0.0) {
             return None;
@@ -42,7 +47,13 @@ impl EgoAction {
 
     /// The features a model conditions on, as f32.
     pub fn as_features(&self) -> [f32; 5] {
-        [self.speed_mps as f32, self.yaw_rate_rps as f32, self.dx as f32, self.dy as f32, self.dyaw as f32]
+        [
+            self.speed_mps as f32,
+            self.yaw_rate_rps as f32,
+            self.dx as f32,
+            self.dy as f32,
+            self.dyaw as f32,
+        ]
     }
 }
 
@@ -64,8 +75,14 @@ mod tests {
     fn straight_drive_in_a_rotated_world() {
         // Ego heading +y in the world, drives 5 m forward in 0.5 s.
         let yaw = std::f64::consts::FRAC_PI_2;
-        let a = Pose::from_rotation_translation(DQuat::from_rotation_z(yaw), DVec3::new(10.0, 20.0, 0.0));
-        let b = Pose::from_rotation_translation(DQuat::from_rotation_z(yaw), DVec3::new(10.0, 25.0, 0.0));
+        let a = Pose::from_rotation_translation(
+            DQuat::from_rotation_z(yaw),
+            DVec3::new(10.0, 20.0, 0.0),
+        );
+        let b = Pose::from_rotation_translation(
+            DQuat::from_rotation_z(yaw),
+            DVec3::new(10.0, 25.0, 0.0),
+        );
         let action = EgoAction::between(&a, 0, &b, 500_000).unwrap();
         assert!((action.dx - 5.0).abs() < 1e-12 && action.dy.abs() < 1e-12);
         assert!((action.speed_mps - 10.0).abs() < 1e-9);

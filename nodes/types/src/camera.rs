@@ -69,11 +69,22 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// From a row-major 3x3 matrix as nuScenes writes `camera_intrinsic`.
     pub fn from_rows(rows: [[f64; 3]; 3], width: u32, height: u32) -> Self {
-        Self { fx: rows[0][0], fy: rows[1][1], cx: rows[0][2], cy: rows[1][2], width, height }
+        Self {
+            fx: rows[0][0],
+            fy: rows[1][1],
+            cx: rows[0][2],
+            cy: rows[1][2],
+            width,
+            height,
+        }
     }
 
     pub fn matrix(&self) -> DMat3 {
-        DMat3::from_cols(DVec3::new(self.fx, 0.0, 0.0), DVec3::new(0.0, self.fy, 0.0), DVec3::new(self.cx, self.cy, 1.0))
+        DMat3::from_cols(
+            DVec3::new(self.fx, 0.0, 0.0),
+            DVec3::new(0.0, self.fy, 0.0),
+            DVec3::new(self.cx, self.cy, 1.0),
+        )
     }
 
     /// Projects a camera-frame point (z forward) to pixels; `None` behind the camera.
@@ -91,7 +102,14 @@ impl Intrinsics {
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let sx = f64::from(width) / f64::from(self.width);
         let sy = f64::from(height) / f64::from(self.height);
-        Self { fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy, width, height }
+        Self {
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+            width,
+            height,
+        }
     }
 }
 
@@ -137,10 +155,23 @@ mod tests {
 
     #[test]
     fn projection_and_scaling() {
-        let k = Intrinsics { fx: 1000.0, fy: 1000.0, cx: 800.0, cy: 450.0, width: 1600, height: 900 };
-        assert_eq!(k.project(DVec3::new(1.0, -0.5, 10.0)), Some(DVec2::new(900.0, 400.0)));
+        let k = Intrinsics {
+            fx: 1000.0,
+            fy: 1000.0,
+            cx: 800.0,
+            cy: 450.0,
+            width: 1600,
+            height: 900,
+        };
+        assert_eq!(
+            k.project(DVec3::new(1.0, -0.5, 10.0)),
+            Some(DVec2::new(900.0, 400.0))
+        );
         assert_eq!(k.project(DVec3::new(1.0, 0.0, -1.0)), None);
         let half = k.scaled_to(800, 450);
-        assert_eq!(half.project(DVec3::new(1.0, -0.5, 10.0)), Some(DVec2::new(450.0, 200.0)));
+        assert_eq!(
+            half.project(DVec3::new(1.0, -0.5, 10.0)),
+            Some(DVec2::new(450.0, 200.0))
+        );
     }
 }

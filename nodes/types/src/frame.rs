@@ -36,7 +36,10 @@ impl SensorFrame {
             images: self
                 .cameras
                 .iter()
-                .map(|camera| NamedImage { name: camera.channel.name().to_string(), image: Arc::clone(&camera.image) })
+                .map(|camera| NamedImage {
+                    name: camera.channel.name().to_string(),
+                    image: Arc::clone(&camera.image),
+                })
                 .collect(),
         }
     }

@@ -46,7 +46,11 @@ impl PointCloud {
         self.points
             .iter()
             .map(|p| {
-                let q = ego_from_lidar.transform_point3(glam::DVec3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)));
+                let q = ego_from_lidar.transform_point3(glam::DVec3::new(
+                    f64::from(p.x),
+                    f64::from(p.y),
+                    f64::from(p.z),
+                ));
                 [q.x as f32, q.y as f32, q.z as f32]
             })
             .collect()

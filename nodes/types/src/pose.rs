@@ -14,7 +14,10 @@ pub fn pose_from_translation_quaternion(translation: [f64; 3], wxyz: [f64; 4]) -
     if !length.is_finite() || length < 1e-9 || translation.iter().any(|t| !t.is_finite()) {
         return None;
     }
-    Some(DAffine3::from_rotation_translation(rotation / length, DVec3::from_array(translation)))
+    Some(DAffine3::from_rotation_translation(
+        rotation / length,
+        DVec3::from_array(translation),
+    ))
 }
 
 /// Yaw (rotation about +z) of a pose, in radians.
@@ -31,7 +34,8 @@ mod tests {
     fn quaternion_order_is_wxyz() {
         // 90 degrees about z: w = cos 45, z = sin 45.
         let half = std::f64::consts::FRAC_1_SQRT_2;
-        let pose = pose_from_translation_quaternion([1.0, 2.0, 3.0], [half, 0.0, 0.0, half]).unwrap();
+        let pose =
+            pose_from_translation_quaternion([1.0, 2.0, 3.0], [half, 0.0, 0.0, half]).unwrap();
         let moved = pose.transform_point3(DVec3::X);
         assert!((moved - DVec3::new(1.0, 3.0, 3.0)).length() < 1e-12);
         assert!((yaw_of(&pose) - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
@@ -40,6 +44,8 @@ mod tests {
     #[test]
     fn degenerate_quaternion_is_rejected() {
         assert!(pose_from_translation_quaternion([0.0; 3], [0.0; 4]).is_none());
-        assert!(pose_from_translation_quaternion([f64::NAN, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]).is_none());
+        assert!(
+            pose_from_translation_quaternion([f64::NAN, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]).is_none()
+        );
     }
 }

@@ -8,7 +8,10 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use bevworld_types::{CameraChannel, CameraImage, EgoAction, Intrinsics, PointCloud, Pose, SensorFrame, pose_from_translation_quaternion};
+use bevworld_types::{
+    CameraChannel, CameraImage, EgoAction, Intrinsics, PointCloud, Pose, SensorFrame,
+    pose_from_translation_quaternion,
+};
 use rayon::prelude::*;
 
 use super::tables::{CalibratedSensor, EgoPose, Sample, SampleData, Scene, Sensor, read_table};
@@ -70,7 +73,10 @@ impl NuScenes {
         };
         let dir = root.join(&version);
         if !dir.is_dir() {
-            return Err(SensorError::file(&dir, "no such table folder (expected the nuScenes layout: <root>/<version>/*.json)"));
+            return Err(SensorError::file(
+                &dir,
+                "no such table folder (expected the nuScenes layout: <root>/<version>/*.json)",
+            ));
         }
         let (scene_path, scenes) = read_table::<Scene>(&dir, "scene")?;
         let (sample_path, samples) = read_table::<Sample>(&dir, "sample")?;
@@ -79,47 +85,126 @@ impl NuScenes {
         let (sensor_path, sensors) = read_table::<Sensor>(&dir, "sensor")?;
         let (pose_path, poses) = read_table::<EgoPose>(&dir, "ego_pose")?;
 
-        let sensor_by_token: HashMap<&str, &Sensor> = sensors.iter().map(|s| (s.token.as_str(), s)).collect();
-        let calib_by_token: HashMap<&str, &CalibratedSensor> = calibrated.iter().map(|c| (c.token.as_str(), c)).collect();
-        let pose_by_token: HashMap<&str, &EgoPose> = poses.iter().map(|p| (p.token.as_str(), p)).collect();
-        let sample_by_token: HashMap<&str, &Sample> = samples.iter().map(|s| (s.token.as_str(), s)).collect();
+        let sensor_by_token: HashMap<&str, &Sensor> =
+            sensors.iter().map(|s| (s.token.as_str(), s)).collect();
+        let calib_by_token: HashMap<&str, &CalibratedSensor> =
+            calibrated.iter().map(|c| (c.token.as_str(), c)).collect();
+        let pose_by_token: HashMap<&str, &EgoPose> =
+            poses.iter().map(|p| (p.token.as_str(), p)).collect();
+        let sample_by_token: HashMap<&str, &Sample> =
+            samples.iter().map(|s| (s.token.as_str(), s)).collect();
         for sensor in &sensors {
             if sensor.modality == "camera" && CameraChannel::from_name(&sensor.channel).is_none() {
-                return Err(SensorError::field(&sensor_path, format!("sensor {}", sensor.token), "channel", format!(
-                    "unknown camera channel '{}' (known: CAM_FRONT, CAM_FRONT_RIGHT, CAM_BACK_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_FRONT_LEFT)",
-                    sensor.channel
-                )));
+                return Err(SensorError::field(
+                    &sensor_path,
+                    format!("sensor {}", sensor.token),
+                    "channel",
+                    format!(
+                        "unknown camera channel '{}' (known: CAM_FRONT, CAM_FRONT_RIGHT, CAM_BACK_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_FRONT_LEFT)",
+                        sensor.channel
+                    ),
+                ));
             }
         }
 
         // Resolve every sample_data record into a reading with its channel.
-        let mut readings: Vec<(String, &SampleData, Reading)> = Vec::with_capacity(sample_data.len());
+        let mut readings: Vec<(String, &SampleData, Reading)> =
+            Vec::with_capacity(sample_data.len());
         for record in &sample_data {
             let name = format!("sample_data {}", record.token);
-            let calib = calib_by_token.get(record.calibrated_sensor_token.as_str()).ok_or_else(|| {
-                SensorError::field(&data_path, &name, "calibrated_sensor_token", format!("dangling token '{}' (not in {})", record.calibrated_sensor_token, calib_path.display()))
-            })?;
-            let sensor = sensor_by_token.get(calib.sensor_token.as_str()).ok_or_else(|| {
-                SensorError::field(&calib_path, format!("calibrated_sensor {}", calib.token), "sensor_token", format!("dangling token '{}' (not in {})", calib.sensor_token, sensor_path.display()))
-            })?;
-            let pose = pose_by_token.get(record.ego_pose_token.as_str()).ok_or_else(|| {
-                SensorError::field(&data_path, &name, "ego_pose_token", format!("dangling token '{}' (not in {})", record.ego_pose_token, pose_path.display()))
-            })?;
+            let calib = calib_by_token
+                .get(record.calibrated_sensor_token.as_str())
+                .ok_or_else(|| {
+                    SensorError::field(
+                        &data_path,
+                        &name,
+                        "calibrated_sensor_token",
+                        format!(
+                            "dangling token '{}' (not in {})",
+                            record.calibrated_sensor_token,
+                            calib_path.display()
+                        ),
+                    )
+                })?;
+            let sensor = sensor_by_token
+                .get(calib.sensor_token.as_str())
+                .ok_or_else(|| {
+                    SensorError::field(
+                        &calib_path,
+                        format!("calibrated_sensor {}", calib.token),
+                        "sensor_token",
+                        format!(
+                            "dangling token '{}' (not in {})",
+                            calib.sensor_token,
+                            sensor_path.display()
+                        ),
+                    )
+                })?;
+            let pose = pose_by_token
+                .get(record.ego_pose_token.as_str())
+                .ok_or_else(|| {
+                    SensorError::field(
+                        &data_path,
+                        &name,
+                        "ego_pose_token",
+                        format!(
+                            "dangling token '{}' (not in {})",
+                            record.ego_pose_token,
+                            pose_path.display()
+                        ),
+                    )
+                })?;
             if !sample_by_token.contains_key(record.sample_token.as_str()) {
-                return Err(SensorError::field(&data_path, &name, "sample_token", format!("dangling token '{}' (not in {})", record.sample_token, sample_path.display())));
+                return Err(SensorError::field(
+                    &data_path,
+                    &name,
+                    "sample_token",
+                    format!(
+                        "dangling token '{}' (not in {})",
+                        record.sample_token,
+                        sample_path.display()
+                    ),
+                ));
             }
-            let global_from_ego = pose_from_translation_quaternion(pose.translation, pose.rotation).ok_or_else(|| {
-                SensorError::field(&pose_path, format!("ego_pose {}", pose.token), "rotation", "not a valid rotation quaternion or translation")
-            })?;
-            let ego_from_sensor = pose_from_translation_quaternion(calib.translation, calib.rotation).ok_or_else(|| {
-                SensorError::field(&calib_path, format!("calibrated_sensor {}", calib.token), "rotation", "not a valid rotation quaternion or translation")
-            })?;
+            let global_from_ego = pose_from_translation_quaternion(pose.translation, pose.rotation)
+                .ok_or_else(|| {
+                    SensorError::field(
+                        &pose_path,
+                        format!("ego_pose {}", pose.token),
+                        "rotation",
+                        "not a valid rotation quaternion or translation",
+                    )
+                })?;
+            let ego_from_sensor =
+                pose_from_translation_quaternion(calib.translation, calib.rotation).ok_or_else(
+                    || {
+                        SensorError::field(
+                            &calib_path,
+                            format!("calibrated_sensor {}", calib.token),
+                            "rotation",
+                            "not a valid rotation quaternion or translation",
+                        )
+                    },
+                )?;
             let intrinsics = if sensor.modality == "camera" {
                 let rows = &calib.camera_intrinsic;
-                if rows.len() != 3 || rows.iter().any(|row| row.len() != 3 || row.iter().any(|v| !v.is_finite())) {
-                    return Err(SensorError::field(&calib_path, format!("calibrated_sensor {}", calib.token), "camera_intrinsic", "a camera needs a finite 3x3 matrix"));
+                if rows.len() != 3
+                    || rows
+                        .iter()
+                        .any(|row| row.len() != 3 || row.iter().any(|v| !v.is_finite()))
+                {
+                    return Err(SensorError::field(
+                        &calib_path,
+                        format!("calibrated_sensor {}", calib.token),
+                        "camera_intrinsic",
+                        "a camera needs a finite 3x3 matrix",
+                    ));
                 }
-                let matrix = [[rows[0][0], rows[0][1], rows[0][2]], [rows[1][0], rows[1][1], rows[1][2]], [rows[2][0], rows[2][1], rows[2][2]]];
+                let matrix = [
+                    [rows[0][0], rows[0][1], rows[0][2]],
+                    [rows[1][0], rows[1][1], rows[1][2]],
+                    [rows[2][0], rows[2][1], rows[2][2]],
+                ];
                 Some(Intrinsics::from_rows(matrix, record.width, record.height))
             } else {
                 None
@@ -127,7 +212,13 @@ impl NuScenes {
             readings.push((
                 sensor.channel.clone(),
                 record,
-                Reading { file: record.filename.clone(), timestamp_us: record.timestamp, global_from_ego, ego_from_sensor, intrinsics },
+                Reading {
+                    file: record.filename.clone(),
+                    timestamp_us: record.timestamp,
+                    global_from_ego,
+                    ego_from_sensor,
+                    intrinsics,
+                },
             ));
         }
 
@@ -136,7 +227,10 @@ impl NuScenes {
         for wanted in &options.scenes {
             if !scenes.iter().any(|s| &s.name == wanted) {
                 let known: Vec<&str> = scenes.iter().map(|s| s.name.as_str()).collect();
-                return Err(SensorError::file(&scene_path, format!("no scene named '{wanted}' (scenes: {})", known.join(", "))));
+                return Err(SensorError::file(
+                    &scene_path,
+                    format!("no scene named '{wanted}' (scenes: {})", known.join(", ")),
+                ));
             }
         }
         for scene in &scenes {
@@ -148,19 +242,31 @@ impl NuScenes {
         let mut frames = Vec::new();
         for scene in selected {
             let keyframes = ordered_samples(scene, &samples, &sample_by_token, &sample_path)?;
-            let scene_samples: std::collections::HashSet<&str> = keyframes.iter().map(|s| s.token.as_str()).collect();
+            let scene_samples: std::collections::HashSet<&str> =
+                keyframes.iter().map(|s| s.token.as_str()).collect();
             // LiDAR readings that define frames, in time order.
             let mut lidar_readings: Vec<&(String, &SampleData, Reading)> = readings
                 .iter()
                 .filter(|(channel, record, _)| {
-                    channel == "LIDAR_TOP" && scene_samples.contains(record.sample_token.as_str()) && (options.sweeps || record.is_key_frame)
+                    channel == "LIDAR_TOP"
+                        && scene_samples.contains(record.sample_token.as_str())
+                        && (options.sweeps || record.is_key_frame)
                 })
                 .collect();
             lidar_readings.sort_by_key(|(_, record, _)| record.timestamp);
-            if let Some(pair) = lidar_readings.windows(2).find(|w| w[0].1.timestamp >= w[1].1.timestamp) {
-                return Err(SensorError::field(&data_path, format!("sample_data {}", pair[1].1.token), "timestamp", format!(
-                    "timestamps are not strictly increasing within scene '{}' ({} then {})", scene.name, pair[0].1.timestamp, pair[1].1.timestamp
-                )));
+            if let Some(pair) = lidar_readings
+                .windows(2)
+                .find(|w| w[0].1.timestamp >= w[1].1.timestamp)
+            {
+                return Err(SensorError::field(
+                    &data_path,
+                    format!("sample_data {}", pair[1].1.token),
+                    "timestamp",
+                    format!(
+                        "timestamps are not strictly increasing within scene '{}' ({} then {})",
+                        scene.name, pair[0].1.timestamp, pair[1].1.timestamp
+                    ),
+                ));
             }
             let scene_cameras: Vec<&(String, &SampleData, Reading)> = readings
                 .iter()
@@ -175,9 +281,12 @@ impl NuScenes {
                 let mut cameras = Vec::new();
                 for channel in CameraChannel::ALL {
                     let candidates = scene_cameras.iter().filter(|(name, record, _)| {
-                        name == channel.name() && (options.sweeps || record.sample_token == lidar_record.sample_token)
+                        name == channel.name()
+                            && (options.sweeps || record.sample_token == lidar_record.sample_token)
                     });
-                    let nearest = candidates.min_by_key(|(_, record, _)| (record.timestamp - lidar_record.timestamp).abs());
+                    let nearest = candidates.min_by_key(|(_, record, _)| {
+                        (record.timestamp - lidar_record.timestamp).abs()
+                    });
                     if let Some((_, _, reading)) = nearest {
                         cameras.push((channel, reading.clone()));
                     }
@@ -194,10 +303,20 @@ impl NuScenes {
             // Actions between consecutive frames of the scene.
             for index in first_index..frames.len().saturating_sub(1) {
                 let (a, b) = (&frames[index].lidar, &frames[index + 1].lidar);
-                frames[index].action = EgoAction::between(&a.global_from_ego, a.timestamp_us, &b.global_from_ego, b.timestamp_us);
+                frames[index].action = EgoAction::between(
+                    &a.global_from_ego,
+                    a.timestamp_us,
+                    &b.global_from_ego,
+                    b.timestamp_us,
+                );
             }
         }
-        Ok(Self { root: root.to_path_buf(), version, frames, options })
+        Ok(Self {
+            root: root.to_path_buf(),
+            version,
+            frames,
+            options,
+        })
     }
 
     pub fn version(&self) -> &str {
@@ -218,7 +337,9 @@ impl NuScenes {
 
     /// The index of the frame of a sample token.
     pub fn index_of_sample(&self, token: &str) -> Option<usize> {
-        self.frames.iter().position(|frame| frame.sample_token == token)
+        self.frames
+            .iter()
+            .position(|frame| frame.sample_token == token)
     }
 
     /// Scene name of each frame, in frame order.
@@ -237,9 +358,17 @@ impl NuScenes {
         let cameras = if self.options.skip_images {
             Vec::new()
         } else {
-            frame.cameras.iter().map(|(_, reading)| read(&reading.file)).collect::<Result<Vec<_>>>()?
+            frame
+                .cameras
+                .iter()
+                .map(|(_, reading)| read(&reading.file))
+                .collect::<Result<Vec<_>>>()?
         };
-        Ok(FrameFiles { index, lidar, cameras })
+        Ok(FrameFiles {
+            index,
+            lidar,
+            cameras,
+        })
     }
 
     /// The files that `fetch` reads for a frame, relative to the root.
@@ -256,7 +385,12 @@ impl NuScenes {
     pub fn decode(&self, files: FrameFiles) -> Result<SensorFrame> {
         let frame = self.frame_ref(files.index)?;
         let lidar_path = self.root.join(&frame.lidar.file);
-        let (points, dropped) = decode_points(&files.lidar, LidarLayout::NuScenes, self.options.non_finite, &lidar_path)?;
+        let (points, dropped) = decode_points(
+            &files.lidar,
+            LidarLayout::NuScenes,
+            self.options.non_finite,
+            &lidar_path,
+        )?;
         let cloud = PointCloud {
             points,
             ego_from_lidar: frame.lidar.ego_from_sensor,
@@ -287,17 +421,33 @@ impl NuScenes {
         self.decode(self.fetch(index)?)
     }
 
-    fn decode_camera(&self, bytes: &[u8], channel: CameraChannel, reading: &Reading) -> Result<CameraImage> {
+    fn decode_camera(
+        &self,
+        bytes: &[u8],
+        channel: CameraChannel,
+        reading: &Reading,
+    ) -> Result<CameraImage> {
         let path = self.root.join(&reading.file);
         let image = image::load_from_memory(bytes)
-            .map_err(|error| SensorError::Image { path: path.clone(), message: error.to_string() })?
+            .map_err(|error| SensorError::Image {
+                path: path.clone(),
+                message: error.to_string(),
+            })?
             .into_rgb8();
-        let intrinsics = reading.intrinsics.ok_or_else(|| SensorError::file(&path, "camera reading without intrinsics"))?;
+        let intrinsics = reading
+            .intrinsics
+            .ok_or_else(|| SensorError::file(&path, "camera reading without intrinsics"))?;
         if image.width() != intrinsics.width || image.height() != intrinsics.height {
-            return Err(SensorError::file(&path, format!(
-                "image is {}x{} but sample_data says {}x{}",
-                image.width(), image.height(), intrinsics.width, intrinsics.height
-            )));
+            return Err(SensorError::file(
+                &path,
+                format!(
+                    "image is {}x{} but sample_data says {}x{}",
+                    image.width(),
+                    image.height(),
+                    intrinsics.width,
+                    intrinsics.height
+                ),
+            ));
         }
         Ok(CameraImage {
             channel,
@@ -311,7 +461,12 @@ impl NuScenes {
     }
 
     fn frame_ref(&self, index: usize) -> Result<&FrameRef> {
-        self.frames.get(index).ok_or_else(|| SensorError::Other(format!("frame {index} out of range (dataset has {})", self.frames.len())))
+        self.frames.get(index).ok_or_else(|| {
+            SensorError::Other(format!(
+                "frame {index} out of range (dataset has {})",
+                self.frames.len()
+            ))
+        })
     }
 }
 
@@ -326,42 +481,83 @@ fn detect_version(root: &Path) -> Result<String> {
     versions.sort();
     match versions.len() {
         1 => Ok(versions.remove(0)),
-        0 => Err(SensorError::file(root, "no table folder with sample_data.json (expected <root>/v1.0-*/; missing table?)")),
-        _ => Err(SensorError::file(root, format!("several table folders ({}); choose one with version", versions.join(", ")))),
+        0 => Err(SensorError::file(
+            root,
+            "no table folder with sample_data.json (expected <root>/v1.0-*/; missing table?)",
+        )),
+        _ => Err(SensorError::file(
+            root,
+            format!(
+                "several table folders ({}); choose one with version",
+                versions.join(", ")
+            ),
+        )),
     }
 }
 
 /// A scene's keyframes in time order: the prev/next chain when the tables have it, otherwise
 /// sorted by timestamp (trimmed tables leave prev/next empty). Either way strictly increasing.
-fn ordered_samples<'a>(scene: &Scene, samples: &'a [Sample], by_token: &HashMap<&str, &'a Sample>, path: &Path) -> Result<Vec<&'a Sample>> {
+fn ordered_samples<'a>(
+    scene: &Scene,
+    samples: &'a [Sample],
+    by_token: &HashMap<&str, &'a Sample>,
+    path: &Path,
+) -> Result<Vec<&'a Sample>> {
     let mut ordered: Vec<&Sample> = Vec::new();
     let mut cursor = by_token.get(scene.first_sample_token.as_str()).copied();
     if cursor.is_none() && !scene.first_sample_token.is_empty() {
-        return Err(SensorError::field(path.with_file_name("scene.json"), format!("scene {}", scene.name), "first_sample_token", format!("dangling token '{}'", scene.first_sample_token)));
+        return Err(SensorError::field(
+            path.with_file_name("scene.json"),
+            format!("scene {}", scene.name),
+            "first_sample_token",
+            format!("dangling token '{}'", scene.first_sample_token),
+        ));
     }
     while let Some(sample) = cursor {
         if ordered.len() > samples.len() {
-            return Err(SensorError::field(path, format!("sample {}", sample.token), "next", "the prev/next chain loops"));
+            return Err(SensorError::field(
+                path,
+                format!("sample {}", sample.token),
+                "next",
+                "the prev/next chain loops",
+            ));
         }
         ordered.push(sample);
         cursor = if sample.next.is_empty() {
             None
         } else {
             Some(by_token.get(sample.next.as_str()).copied().ok_or_else(|| {
-                SensorError::field(path, format!("sample {}", sample.token), "next", format!("dangling token '{}'", sample.next))
+                SensorError::field(
+                    path,
+                    format!("sample {}", sample.token),
+                    "next",
+                    format!("dangling token '{}'", sample.next),
+                )
             })?)
         };
     }
-    let in_scene: Vec<&Sample> = samples.iter().filter(|s| s.scene_token == scene.token).collect();
+    let in_scene: Vec<&Sample> = samples
+        .iter()
+        .filter(|s| s.scene_token == scene.token)
+        .collect();
     if ordered.len() < in_scene.len() {
         // Trimmed chain: fall back to time order.
         ordered = in_scene;
         ordered.sort_by_key(|s| s.timestamp);
     }
-    if let Some(pair) = ordered.windows(2).find(|w| w[0].timestamp >= w[1].timestamp) {
-        return Err(SensorError::field(path, format!("sample {}", pair[1].token), "timestamp", format!(
-            "timestamps are not strictly increasing in scene '{}' ({} then {})", scene.name, pair[0].timestamp, pair[1].timestamp
-        )));
+    if let Some(pair) = ordered
+        .windows(2)
+        .find(|w| w[0].timestamp >= w[1].timestamp)
+    {
+        return Err(SensorError::field(
+            path,
+            format!("sample {}", pair[1].token),
+            "timestamp",
+            format!(
+                "timestamps are not strictly increasing in scene '{}' ({} then {})",
+                scene.name, pair[0].timestamp, pair[1].timestamp
+            ),
+        ));
     }
     Ok(ordered)
 }

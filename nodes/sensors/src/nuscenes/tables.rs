@@ -104,10 +104,16 @@ pub struct SampleAnnotation {
 }
 
 /// Reads one table, naming the file in every error.
-pub fn read_table<T: DeserializeOwned>(dir: &Path, table: &'static str) -> Result<(PathBuf, Vec<T>)> {
+pub fn read_table<T: DeserializeOwned>(
+    dir: &Path,
+    table: &'static str,
+) -> Result<(PathBuf, Vec<T>)> {
     let path = dir.join(format!("{table}.json"));
     let bytes = std::fs::read(&path).map_err(|error| SensorError::io(&path, error))?;
-    let rows = serde_json::from_slice::<Vec<T>>(&bytes)
-        .map_err(|error| SensorError::Table { path: path.clone(), table, message: error.to_string() })?;
+    let rows = serde_json::from_slice::<Vec<T>>(&bytes).map_err(|error| SensorError::Table {
+        path: path.clone(),
+        table,
+        message: error.to_string(),
+    })?;
     Ok((path, rows))
 }

@@ -44,25 +44,45 @@ impl Snapshot {
         }
         lo -= DVec2::splat(CELL);
         hi += DVec2::splat(CELL);
-        let size = (((hi.x - lo.x) / CELL).ceil() as usize, ((hi.y - lo.y) / CELL).ceil() as usize);
+        let size = (
+            ((hi.x - lo.x) / CELL).ceil() as usize,
+            ((hi.y - lo.y) / CELL).ceil() as usize,
+        );
         let mut cells = vec![Vec::new(); size.0 * size.1];
         for (index, solid) in solids.iter().enumerate() {
             let (a, b) = solid.shape.bounds_xy();
-            let (x0, y0) = (((a.x - lo.x) / CELL).floor() as usize, ((a.y - lo.y) / CELL).floor() as usize);
-            let (x1, y1) = (((b.x - lo.x) / CELL).floor() as usize, ((b.y - lo.y) / CELL).floor() as usize);
+            let (x0, y0) = (
+                ((a.x - lo.x) / CELL).floor() as usize,
+                ((a.y - lo.y) / CELL).floor() as usize,
+            );
+            let (x1, y1) = (
+                ((b.x - lo.x) / CELL).floor() as usize,
+                ((b.y - lo.y) / CELL).floor() as usize,
+            );
             for y in y0..=y1.min(size.1 - 1) {
                 for x in x0..=x1.min(size.0 - 1) {
                     cells[y * size.0 + x].push(index as u32);
                 }
             }
         }
-        Self { roads, solids, origin: lo, cell: CELL, size, cells }
+        Self {
+            roads,
+            solids,
+            origin: lo,
+            cell: CELL,
+            size,
+            cells,
+        }
     }
 
     /// The closest hit along a ray within `t_max`, or None for open sky.
     pub fn cast(&self, ray: &Ray, t_max: f64) -> Option<Hit> {
         // The ground plane (asphalt) bounds the search for rays going down.
-        let t_ground = if ray.direction.z < -1e-12 { -ray.origin.z / ray.direction.z } else { f64::INFINITY };
+        let t_ground = if ray.direction.z < -1e-12 {
+            -ray.origin.z / ray.direction.z
+        } else {
+            f64::INFINITY
+        };
         let mut best: Option<(f64, DVec3, usize)> = None;
         let limit = t_max.min(t_ground);
 
@@ -74,19 +94,43 @@ impl Snapshot {
         let step_x: i64 = if d.x >= 0.0 { 1 } else { -1 };
         let step_y: i64 = if d.y >= 0.0 { 1 } else { -1 };
         let next_boundary = |c: i64, step: i64| (c + i64::from(step > 0)) as f64 * self.cell;
-        let mut t_max_x = if d.x.abs() > 1e-12 { (next_boundary(cx, step_x) - local.x) / d.x } else { f64::INFINITY };
-        let mut t_max_y = if d.y.abs() > 1e-12 { (next_boundary(cy, step_y) - local.y) / d.y } else { f64::INFINITY };
-        let t_delta_x = if d.x.abs() > 1e-12 { self.cell / d.x.abs() } else { f64::INFINITY };
-        let t_delta_y = if d.y.abs() > 1e-12 { self.cell / d.y.abs() } else { f64::INFINITY };
+        let mut t_max_x = if d.x.abs() > 1e-12 {
+            (next_boundary(cx, step_x) - local.x) / d.x
+        } else {
+            f64::INFINITY
+        };
+        let mut t_max_y = if d.y.abs() > 1e-12 {
+            (next_boundary(cy, step_y) - local.y) / d.y
+        } else {
+            f64::INFINITY
+        };
+        let t_delta_x = if d.x.abs() > 1e-12 {
+            self.cell / d.x.abs()
+        } else {
+            f64::INFINITY
+        };
+        let t_delta_y = if d.y.abs() > 1e-12 {
+            self.cell / d.y.abs()
+        } else {
+            f64::INFINITY
+        };
         let mut t_cell_start = 0.0;
         loop {
-            if cx < 0 || cy < 0 || cx >= self.size.0 as i64 || cy >= self.size.1 as i64 || t_cell_start > limit {
+            if cx < 0
+                || cy < 0
+                || cx >= self.size.0 as i64
+                || cy >= self.size.1 as i64
+                || t_cell_start > limit
+            {
                 break;
             }
             let t_cell_end = t_max_x.min(t_max_y);
             let bound = best.map_or(limit, |b| b.0);
             for &index in &self.cells[cy as usize * self.size.0 + cx as usize] {
-                if let Some(hit) = self.solids[index as usize].shape.intersect(ray, bound.min(best.map_or(f64::INFINITY, |b| b.0))) {
+                if let Some(hit) = self.solids[index as usize]
+                    .shape
+                    .intersect(ray, bound.min(best.map_or(f64::INFINITY, |b| b.0)))
+                {
                     if best.is_none_or(|b| hit.t < b.0) {
                         best = Some((hit.t, hit.normal, index as usize));
                     }
@@ -107,7 +151,13 @@ impl Snapshot {
         match best {
             Some((t, normal, index)) if t <= limit => {
                 let solid = &self.solids[index];
-                Some(Hit { t, point: ray.at(t), normal, material: solid.material, instance: solid.instance })
+                Some(Hit {
+                    t,
+                    point: ray.at(t),
+                    normal,
+                    material: solid.material,
+                    instance: solid.instance,
+                })
             }
             _ if t_ground <= t_max => Some(Hit {
                 t: t_ground,
@@ -122,16 +172,32 @@ impl Snapshot {
 
     /// The same query by testing every solid: the reference the grid is checked against.
     pub fn cast_brute_force(&self, ray: &Ray, t_max: f64) -> Option<Hit> {
-        let t_ground = if ray.direction.z < -1e-12 { -ray.origin.z / ray.direction.z } else { f64::INFINITY };
+        let t_ground = if ray.direction.z < -1e-12 {
+            -ray.origin.z / ray.direction.z
+        } else {
+            f64::INFINITY
+        };
         let mut best: Option<Hit> = None;
         for solid in &self.solids {
             if let Some(hit) = solid.shape.intersect(ray, best.map_or(t_max, |b| b.t)) {
-                best = Some(Hit { t: hit.t, point: ray.at(hit.t), normal: hit.normal, material: solid.material, instance: solid.instance });
+                best = Some(Hit {
+                    t: hit.t,
+                    point: ray.at(hit.t),
+                    normal: hit.normal,
+                    material: solid.material,
+                    instance: solid.instance,
+                });
             }
         }
         match best {
             Some(hit) if hit.t <= t_ground => Some(hit),
-            _ if t_ground <= t_max => Some(Hit { t: t_ground, point: ray.at(t_ground), normal: DVec3::Z, material: Material::Asphalt, instance: 0 }),
+            _ if t_ground <= t_max => Some(Hit {
+                t: t_ground,
+                point: ray.at(t_ground),
+                normal: DVec3::Z,
+                material: Material::Asphalt,
+                instance: 0,
+            }),
             _ => None,
         }
     }
@@ -149,7 +215,10 @@ impl Snapshot {
     }
 
     pub fn shapes_of(&self, instance: u32) -> impl Iterator<Item = &Shape> {
-        self.solids.iter().filter(move |s| s.instance == instance).map(|s| &s.shape)
+        self.solids
+            .iter()
+            .filter(move |s| s.instance == instance)
+            .map(|s| &s.shape)
     }
 }
 
@@ -162,7 +231,12 @@ fn sky(direction: DVec3) -> [f64; 3] {
 
 /// Renders one camera: `global_from_camera` maps the camera frame (x right, y down, z forward)
 /// to the world. Returns the image and, per pixel, the instance id that was hit.
-pub fn render_camera(snapshot: &Snapshot, intrinsics: &Intrinsics, global_from_camera: &Pose, far: f64) -> (RgbImage, Vec<u32>) {
+pub fn render_camera(
+    snapshot: &Snapshot,
+    intrinsics: &Intrinsics,
+    global_from_camera: &Pose,
+    far: f64,
+) -> (RgbImage, Vec<u32>) {
     let (width, height) = (intrinsics.width as usize, intrinsics.height as usize);
     let origin = global_from_camera.translation;
     let sun = SUN.normalize();
@@ -205,7 +279,8 @@ pub fn render_camera(snapshot: &Snapshot, intrinsics: &Intrinsics, global_from_c
         buffer.extend_from_slice(&pixels);
         instances.extend_from_slice(&ids);
     }
-    let image = RgbImage::from_raw(intrinsics.width, intrinsics.height, buffer).unwrap_or_else(|| RgbImage::new(1, 1));
+    let image = RgbImage::from_raw(intrinsics.width, intrinsics.height, buffer)
+        .unwrap_or_else(|| RgbImage::new(1, 1));
     (image, instances)
 }
 
@@ -240,7 +315,11 @@ impl LidarSpec {
     pub fn direction(&self, ring: usize, column: usize) -> DVec3 {
         let elevation = self.elevations_deg[ring].to_radians();
         let azimuth = (column as f64 * self.azimuth_step_deg).to_radians();
-        DVec3::new(elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(), elevation.sin())
+        DVec3::new(
+            elevation.cos() * azimuth.cos(),
+            elevation.cos() * azimuth.sin(),
+            elevation.sin(),
+        )
     }
 
     pub fn columns(&self) -> usize {
@@ -250,7 +329,12 @@ impl LidarSpec {
 
 /// One sweep, instantaneous at the snapshot's time. Points are in the LiDAR frame; the second
 /// vector holds each point's instance id.
-pub fn scan_lidar(snapshot: &Snapshot, spec: &LidarSpec, global_from_lidar: &Pose, noise_seed: u64) -> (Vec<LidarPoint>, Vec<u32>) {
+pub fn scan_lidar(
+    snapshot: &Snapshot,
+    spec: &LidarSpec,
+    global_from_lidar: &Pose,
+    noise_seed: u64,
+) -> (Vec<LidarPoint>, Vec<u32>) {
     let origin = global_from_lidar.translation;
     let columns = spec.columns();
     let per_ring: Vec<(Vec<LidarPoint>, Vec<u32>)> = (0..spec.elevations_deg.len())
@@ -261,8 +345,13 @@ pub fn scan_lidar(snapshot: &Snapshot, spec: &LidarSpec, global_from_lidar: &Pos
             let mut ids = Vec::new();
             for column in 0..columns {
                 let local = spec.direction(ring, column);
-                let ray = Ray { origin, direction: global_from_lidar.transform_vector3(local) };
-                let Some(hit) = snapshot.cast(&ray, spec.max_range) else { continue };
+                let ray = Ray {
+                    origin,
+                    direction: global_from_lidar.transform_vector3(local),
+                };
+                let Some(hit) = snapshot.cast(&ray, spec.max_range) else {
+                    continue;
+                };
                 // Draw noise for every return so the stream does not depend on what was hit.
                 let noise = rng.normal() * spec.range_noise;
                 let dropped = rng.chance(spec.drop_probability);
@@ -272,9 +361,17 @@ pub fn scan_lidar(snapshot: &Snapshot, spec: &LidarSpec, global_from_lidar: &Pos
                 }
                 let (_, reflectivity) = snapshot.albedo(&hit);
                 let incidence = hit.normal.dot(-ray.direction).abs();
-                let intensity = (reflectivity * (0.3 + 0.7 * incidence) * 255.0).round().clamp(0.0, 255.0);
+                let intensity = (reflectivity * (0.3 + 0.7 * incidence) * 255.0)
+                    .round()
+                    .clamp(0.0, 255.0);
                 let p = local * range;
-                points.push(LidarPoint { x: p.x as f32, y: p.y as f32, z: p.z as f32, intensity: intensity as f32, ring: ring as u16 });
+                points.push(LidarPoint {
+                    x: p.x as f32,
+                    y: p.y as f32,
+                    z: p.z as f32,
+                    intensity: intensity as f32,
+                    ring: ring as u16,
+                });
                 ids.push(hit.instance);
             }
             (points, ids)

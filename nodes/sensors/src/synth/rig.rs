@@ -16,16 +16,57 @@ pub struct CameraMount {
 }
 
 pub const CAMERAS: [CameraMount; 6] = [
-    CameraMount { channel: CameraChannel::Front, translation: [1.7008, 0.0159, 1.5110], rotation: [0.499802, -0.503032, 0.499780, -0.497371], intrinsics_1600: [1266.42, 1266.42, 816.27, 491.51], offset_us: -35_491 },
-    CameraMount { channel: CameraChannel::FrontRight, translation: [1.5508, -0.4934, 1.4957], rotation: [0.206035, -0.202694, 0.682451, -0.671361], intrinsics_1600: [1260.85, 1260.85, 807.97, 495.33], offset_us: -27_612 },
-    CameraMount { channel: CameraChannel::BackRight, translation: [1.0149, -0.4806, 1.5624], rotation: [0.122810, -0.132401, -0.700431, 0.690496], intrinsics_1600: [1259.51, 1259.51, 807.25, 501.20], offset_us: -20_058 },
-    CameraMount { channel: CameraChannel::Back, translation: [0.0283, 0.0035, 1.5791], rotation: [0.503787, -0.497402, -0.494185, 0.504550], intrinsics_1600: [809.22, 809.22, 829.22, 481.78], offset_us: -10_426 },
-    CameraMount { channel: CameraChannel::BackLeft, translation: [1.0357, 0.4848, 1.5910], rotation: [0.692419, -0.703162, -0.116483, 0.112033], intrinsics_1600: [1256.74, 1256.74, 792.11, 492.78], offset_us: -528 },
-    CameraMount { channel: CameraChannel::FrontLeft, translation: [1.5239, 0.4946, 1.5093], rotation: [0.675727, -0.673627, 0.212140, -0.211228], intrinsics_1600: [1272.60, 1272.60, 826.62, 479.75], offset_us: -43_107 },
+    CameraMount {
+        channel: CameraChannel::Front,
+        translation: [1.7008, 0.0159, 1.5110],
+        rotation: [0.499802, -0.503032, 0.499780, -0.497371],
+        intrinsics_1600: [1266.42, 1266.42, 816.27, 491.51],
+        offset_us: -35_491,
+    },
+    CameraMount {
+        channel: CameraChannel::FrontRight,
+        translation: [1.5508, -0.4934, 1.4957],
+        rotation: [0.206035, -0.202694, 0.682451, -0.671361],
+        intrinsics_1600: [1260.85, 1260.85, 807.97, 495.33],
+        offset_us: -27_612,
+    },
+    CameraMount {
+        channel: CameraChannel::BackRight,
+        translation: [1.0149, -0.4806, 1.5624],
+        rotation: [0.122810, -0.132401, -0.700431, 0.690496],
+        intrinsics_1600: [1259.51, 1259.51, 807.25, 501.20],
+        offset_us: -20_058,
+    },
+    CameraMount {
+        channel: CameraChannel::Back,
+        translation: [0.0283, 0.0035, 1.5791],
+        rotation: [0.503787, -0.497402, -0.494185, 0.504550],
+        intrinsics_1600: [809.22, 809.22, 829.22, 481.78],
+        offset_us: -10_426,
+    },
+    CameraMount {
+        channel: CameraChannel::BackLeft,
+        translation: [1.0357, 0.4848, 1.5910],
+        rotation: [0.692419, -0.703162, -0.116483, 0.112033],
+        intrinsics_1600: [1256.74, 1256.74, 792.11, 492.78],
+        offset_us: -528,
+    },
+    CameraMount {
+        channel: CameraChannel::FrontLeft,
+        translation: [1.5239, 0.4946, 1.5093],
+        rotation: [0.675727, -0.673627, 0.212140, -0.211228],
+        intrinsics_1600: [1272.60, 1272.60, 826.62, 479.75],
+        offset_us: -43_107,
+    },
 ];
 
 pub const LIDAR_TRANSLATION: [f64; 3] = [0.943713, 0.0, 1.84023];
-pub const LIDAR_ROTATION: [f64; 4] = [0.7077955119163518, -0.006492242056004365, 0.010646214713995808, -0.7063073142877817];
+pub const LIDAR_ROTATION: [f64; 4] = [
+    0.7077955119163518,
+    -0.006492242056004365,
+    0.010646214713995808,
+    -0.7063073142877817,
+];
 
 impl CameraMount {
     pub fn ego_from_camera(&self) -> Pose {
@@ -35,7 +76,15 @@ impl CameraMount {
     /// Intrinsics for an image of `width` x `height`, scaled from the 1600 x 900 calibration.
     pub fn intrinsics(&self, width: u32, height: u32) -> Intrinsics {
         let [fx, fy, cx, cy] = self.intrinsics_1600;
-        Intrinsics { fx, fy, cx, cy, width: 1600, height: 900 }.scaled_to(width, height)
+        Intrinsics {
+            fx,
+            fy,
+            cx,
+            cy,
+            width: 1600,
+            height: 900,
+        }
+        .scaled_to(width, height)
     }
 }
 

@@ -8,7 +8,9 @@ pub struct Rng {
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
-        Self { state: seed ^ 0x9E37_79B9_7F4A_7C15 }
+        Self {
+            state: seed ^ 0x9E37_79B9_7F4A_7C15,
+        }
     }
 
     /// A derived stream, independent of how much the parent has drawn.
@@ -56,7 +58,8 @@ pub fn mix(mut z: u64) -> u64 {
 
 /// Hash of an integer lattice point to [0, 1).
 pub fn hash2(x: i64, y: i64, salt: u64) -> f64 {
-    let h = mix((x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ mix((y as u64) ^ salt.wrapping_mul(0xD6E8_FEB8_6659_FD93)));
+    let h = mix((x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ mix((y as u64) ^ salt.wrapping_mul(0xD6E8_FEB8_6659_FD93)));
     (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
@@ -77,7 +80,8 @@ pub fn value_noise(x: f64, y: f64, salt: u64) -> f64 {
 
 /// Two octaves of value noise, for surfaces that should not look tiled.
 pub fn fbm(x: f64, y: f64, salt: u64) -> f64 {
-    0.65 * value_noise(x, y, salt) + 0.35 * value_noise(2.13 * x + 17.0, 2.13 * y - 5.0, salt ^ 0x55)
+    0.65 * value_noise(x, y, salt)
+        + 0.35 * value_noise(2.13 * x + 17.0, 2.13 * y - 5.0, salt ^ 0x55)
 }
 
 /// A 32-hex-character token, derived deterministically.

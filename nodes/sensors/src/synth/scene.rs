@@ -34,14 +34,26 @@ impl SceneWorld {
         let mut rng = Rng::fork(seed, 2);
         let script = EgoScript::generate(&mut rng, &roads, seconds);
         let start = script.path.pose(0.0).0;
-        let around = ((start.x / roads.pitch).round() as i64, (start.y / roads.pitch).round() as i64);
+        let around = (
+            (start.x / roads.pitch).round() as i64,
+            (start.y / roads.pitch).round() as i64,
+        );
         let mut agent_rng = Rng::fork(seed, 3);
         let agents = spawn_agents(&mut agent_rng, &roads, around, agent_count, seconds + 1.0);
         let ticks = ((seconds * RATE_HZ).round() as usize).max(1);
         // A fixed epoch per seed keeps timestamps realistic and distinct between scenes.
         let t0_us = 1_700_000_000_000_000 + (seed % 1_000_000) as i64 * 1_000_000;
         let (states, controls) = script.drive(ticks, RATE_HZ, t0_us);
-        Self { seed, city, agents, script, states, controls, t0_us, ticks }
+        Self {
+            seed,
+            city,
+            agents,
+            script,
+            states,
+            controls,
+            t0_us,
+            ticks,
+        }
     }
 
     pub fn tick_time_us(&self, tick: usize) -> i64 {
@@ -61,7 +73,10 @@ impl SceneWorld {
 
     pub fn global_from_ego(&self, t_us: i64) -> Pose {
         let state = self.ego_state(t_us);
-        Pose::from_rotation_translation(DQuat::from_rotation_z(state.yaw), DVec3::new(state.position.x, state.position.y, 0.0))
+        Pose::from_rotation_translation(
+            DQuat::from_rotation_z(state.yaw),
+            DVec3::new(state.position.x, state.position.y, 0.0),
+        )
     }
 
     /// Parked bodies, then moving bodies at `t_us`, with their instance numbers (from 1).

@@ -10,9 +10,18 @@ use super::world::{RoadSpec, VehicleBody, vehicle_colour};
 /// A piece of a lane path.
 #[derive(Clone, Copy, Debug)]
 pub enum Segment {
-    Line { start: DVec2, direction: DVec2, length: f64 },
+    Line {
+        start: DVec2,
+        direction: DVec2,
+        length: f64,
+    },
     /// Counter-clockwise for positive `sweep`.
-    Arc { center: DVec2, radius: f64, start_angle: f64, sweep: f64 },
+    Arc {
+        center: DVec2,
+        radius: f64,
+        start_angle: f64,
+        sweep: f64,
+    },
 }
 
 impl Segment {
@@ -26,11 +35,21 @@ impl Segment {
     /// Position and heading at arc length `s` from the start.
     pub fn pose(&self, s: f64) -> (DVec2, f64) {
         match *self {
-            Segment::Line { start, direction, .. } => (start + direction * s, direction.y.atan2(direction.x)),
-            Segment::Arc { center, radius, start_angle, sweep } => {
+            Segment::Line {
+                start, direction, ..
+            } => (start + direction * s, direction.y.atan2(direction.x)),
+            Segment::Arc {
+                center,
+                radius,
+                start_angle,
+                sweep,
+            } => {
                 let angle = start_angle + sweep.signum() * s / radius;
                 let position = center + DVec2::new(angle.cos(), angle.sin()) * radius;
-                (position, angle + sweep.signum() * std::f64::consts::FRAC_PI_2)
+                (
+                    position,
+                    angle + sweep.signum() * std::f64::consts::FRAC_PI_2,
+                )
             }
         }
     }
@@ -81,7 +100,10 @@ impl Path {
     pub fn pose(&self, s: f64) -> (DVec2, f64) {
         if s > self.total {
             let (end, heading) = self.pose(self.total);
-            return (end + DVec2::new(heading.cos(), heading.sin()) * (s - self.total), heading);
+            return (
+                end + DVec2::new(heading.cos(), heading.sin()) * (s - self.total),
+                heading,
+            );
         }
         match self.locate(s) {
             Some((index, local)) => self.segments[index].pose(local),
@@ -90,7 +112,9 @@ impl Path {
     }
 
     pub fn curvature(&self, s: f64) -> f64 {
-        self.locate(s).map(|(index, _)| self.segments[index].curvature()).unwrap_or(0.0)
+        self.locate(s)
+            .map(|(index, _)| self.segments[index].curvature())
+            .unwrap_or(0.0)
     }
 }
 
@@ -112,7 +136,13 @@ fn right_of(h: DVec2) -> DVec2 {
 /// Starts at `start` (intersection indices) heading `heading` (a unit axis vector), `offset` m
 /// past the intersection centre, and follows `turns`, one per intersection. A turn that would
 /// leave the grid is replaced by one that stays inside.
-pub fn plan_route(roads: &RoadSpec, start: (i64, i64), heading: DVec2, offset: f64, turns: &[Turn]) -> (Path, Vec<Turn>) {
+pub fn plan_route(
+    roads: &RoadSpec,
+    start: (i64, i64),
+    heading: DVec2,
+    offset: f64,
+    turns: &[Turn],
+) -> (Path, Vec<Turn>) {
     let half_lane = roads.lane_width * 0.5;
     let mut path = Path::default();
     let mut node = start;
@@ -152,7 +182,12 @@ pub fn plan_route(roads: &RoadSpec, start: (i64, i64), heading: DVec2, offset: f
                 let entry = c - right_of(h) * radius;
                 push_line(&mut path, position, entry);
                 let start_vec = entry - c;
-                path.push(Segment::Arc { center: c, radius, start_angle: start_vec.y.atan2(start_vec.x), sweep: -std::f64::consts::FRAC_PI_2 });
+                path.push(Segment::Arc {
+                    center: c,
+                    radius,
+                    start_angle: start_vec.y.atan2(start_vec.x),
+                    sweep: -std::f64::consts::FRAC_PI_2,
+                });
                 h = right_of(h);
                 position = center + right_of(h) * half_lane + h * (half_lane + radius);
             }
@@ -162,7 +197,12 @@ pub fn plan_route(roads: &RoadSpec, start: (i64, i64), heading: DVec2, offset: f
                 let entry = c + right_of(h) * radius;
                 push_line(&mut path, position, entry);
                 let start_vec = entry - c;
-                path.push(Segment::Arc { center: c, radius, start_angle: start_vec.y.atan2(start_vec.x), sweep: std::f64::consts::FRAC_PI_2 });
+                path.push(Segment::Arc {
+                    center: c,
+                    radius,
+                    start_angle: start_vec.y.atan2(start_vec.x),
+                    sweep: std::f64::consts::FRAC_PI_2,
+                });
                 h = -right_of(h);
                 position = center + right_of(h) * half_lane + h * (radius - half_lane);
             }
@@ -181,7 +221,11 @@ fn push_line(path: &mut Path, from: DVec2, to: DVec2) {
     let delta = to - from;
     let length = delta.length();
     if length > 1e-9 {
-        path.push(Segment::Line { start: from, direction: delta / length, length });
+        path.push(Segment::Line {
+            start: from,
+            direction: delta / length,
+            length,
+        });
     }
 }
 
@@ -210,7 +254,8 @@ impl Agent {
         for k in 0..steps {
             progress.push(s);
             let t = k as f64 * dt;
-            let mut target = cruise * (1.0 + wobble * (std::f64::consts::TAU * t / period + phase).sin());
+            let mut target =
+                cruise * (1.0 + wobble * (std::f64::consts::TAU * t / period + phase).sin());
             // Slow for the curve ahead.
             let curve_ahead = (0..4).any(|i| path.curvature(s + 3.0 * i as f64).abs() > 1e-6);
             if curve_ahead {
@@ -223,7 +268,11 @@ impl Agent {
                 s += v * dt / 5.0;
             }
         }
-        Self { body, path, progress }
+        Self {
+            body,
+            path,
+            progress,
+        }
     }
 
     /// The body placed at time `t` (seconds from the scene start).
@@ -233,7 +282,11 @@ impl Agent {
         let f = (x - i as f64).clamp(0.0, 1.0);
         let s = self.progress[i] + (self.progress[i + 1] - self.progress[i]) * f;
         let (center, yaw) = self.path.pose(s);
-        VehicleBody { center, yaw, ..self.body }
+        VehicleBody {
+            center,
+            yaw,
+            ..self.body
+        }
     }
 }
 
@@ -298,7 +351,10 @@ pub struct EgoScript {
 impl EgoScript {
     pub fn generate(rng: &mut Rng, roads: &RoadSpec, seconds: f64) -> Self {
         let middle = roads.count / 2;
-        let start = (middle + rng.below(3) as i64 - 1, middle + rng.below(3) as i64 - 1);
+        let start = (
+            middle + rng.below(3) as i64 - 1,
+            middle + rng.below(3) as i64 - 1,
+        );
         let headings = [DVec2::X, DVec2::Y, -DVec2::X, -DVec2::Y];
         let heading = headings[rng.below(4) as usize];
         let wanted: Vec<Turn> = (0..6)
@@ -311,7 +367,11 @@ impl EgoScript {
         let (path, turns) = plan_route(roads, start, heading, roads.half_width + 2.0, &wanted);
         // Accelerate, cruise, brake, accelerate again: the speeds a driver would pick in town.
         let cruise = rng.range(7.0, 11.0);
-        let mut phases = vec![SpeedPhase { from_s: 0.0, speed: cruise, label: "accelerate" }];
+        let mut phases = vec![SpeedPhase {
+            from_s: 0.0,
+            speed: cruise,
+            label: "accelerate",
+        }];
         let mut t = rng.range(2.5, 4.0);
         while t < seconds {
             let (speed, label) = match rng.below(3) {
@@ -319,22 +379,49 @@ impl EgoScript {
                 1 => (cruise, "keep_speed"),
                 _ => (rng.range(cruise, cruise + 3.0), "accelerate"),
             };
-            phases.push(SpeedPhase { from_s: t, speed, label });
+            phases.push(SpeedPhase {
+                from_s: t,
+                speed,
+                label,
+            });
             t += rng.range(2.0, 4.0);
         }
-        Self { path, turns, phases, initial_speed: rng.range(2.0, 5.0) }
+        Self {
+            path,
+            turns,
+            phases,
+            initial_speed: rng.range(2.0, 5.0),
+        }
     }
 
     fn phase_at(&self, t: f64) -> SpeedPhase {
-        self.phases.iter().rev().find(|p| p.from_s <= t).copied().unwrap_or(SpeedPhase { from_s: 0.0, speed: 0.0, label: "stop" })
+        self.phases
+            .iter()
+            .rev()
+            .find(|p| p.from_s <= t)
+            .copied()
+            .unwrap_or(SpeedPhase {
+                from_s: 0.0,
+                speed: 0.0,
+                label: "stop",
+            })
     }
 
     /// Drives the script at `rate_hz` for `frames` frames: the states at each frame, and the
     /// controls applied between consecutive frames.
-    pub fn drive(&self, frames: usize, rate_hz: f64, t0_us: i64) -> (Vec<BicycleState>, Vec<EgoControl>) {
+    pub fn drive(
+        &self,
+        frames: usize,
+        rate_hz: f64,
+        t0_us: i64,
+    ) -> (Vec<BicycleState>, Vec<EgoControl>) {
         let dt = 1.0 / rate_hz;
         let (position, yaw) = self.path.pose(0.0);
-        let mut state = BicycleState { position, yaw, speed: self.initial_speed };
+        let mut state = BicycleState {
+            position,
+            yaw,
+            speed: self.initial_speed,
+        };
         let mut progress: f64 = 0.0;
         let mut states = Vec::with_capacity(frames);
         let mut controls = Vec::with_capacity(frames);
@@ -357,11 +444,18 @@ impl EgoScript {
             let (target, _) = self.path.pose(progress + lookahead);
             let to_target = target - state.position;
             let alpha = to_target.y.atan2(to_target.x) - state.yaw;
-            let steering = (2.0 * WHEELBASE * alpha.sin() / lookahead).atan().clamp(-0.6, 0.6);
+            let steering = (2.0 * WHEELBASE * alpha.sin() / lookahead)
+                .atan()
+                .clamp(-0.6, 0.6);
             // Speed: the phase's target, slower in curves.
             let phase = self.phase_at(t);
-            let curve_ahead = (0..5).any(|i| self.path.curvature(progress + 2.5 * i as f64).abs() > 1e-6);
-            let target_speed = if curve_ahead { phase.speed.min(5.0) } else { phase.speed };
+            let curve_ahead =
+                (0..5).any(|i| self.path.curvature(progress + 2.5 * i as f64).abs() > 1e-6);
+            let target_speed = if curve_ahead {
+                phase.speed.min(5.0)
+            } else {
+                phase.speed
+            };
             let acceleration = ((target_speed - state.speed) * 1.2).clamp(-4.0, 2.5);
             let manoeuvre = if curve_ahead {
                 match self.path.curvature(progress + 5.0).partial_cmp(&0.0) {
@@ -386,7 +480,13 @@ impl EgoScript {
 }
 
 /// Moving vehicles near the ego's start, each on its own random route.
-pub fn spawn_agents(rng: &mut Rng, roads: &RoadSpec, around: (i64, i64), count: usize, seconds: f64) -> Vec<Agent> {
+pub fn spawn_agents(
+    rng: &mut Rng,
+    roads: &RoadSpec,
+    around: (i64, i64),
+    count: usize,
+    seconds: f64,
+) -> Vec<Agent> {
     let headings = [DVec2::X, DVec2::Y, -DVec2::X, -DVec2::Y];
     (0..count)
         .map(|_| {
@@ -395,13 +495,22 @@ pub fn spawn_agents(rng: &mut Rng, roads: &RoadSpec, around: (i64, i64), count: 
                 (around.1 + rng.below(5) as i64 - 2).clamp(0, roads.count - 2),
             );
             let heading = headings[rng.below(4) as usize];
-            let offset = rng.range(roads.half_width + 3.0, roads.pitch - roads.half_width - 10.0);
-            let turns: Vec<Turn> = (0..6).map(|_| [Turn::Straight, Turn::Left, Turn::Right][rng.below(3) as usize]).collect();
+            let offset = rng.range(
+                roads.half_width + 3.0,
+                roads.pitch - roads.half_width - 10.0,
+            );
+            let turns: Vec<Turn> = (0..6)
+                .map(|_| [Turn::Straight, Turn::Left, Turn::Right][rng.below(3) as usize])
+                .collect();
             let (path, _) = plan_route(roads, start, heading, offset, &turns);
             let body = VehicleBody {
                 center: DVec2::ZERO,
                 yaw: 0.0,
-                size: DVec3::new(rng.range(1.75, 2.0), rng.range(4.2, 5.0), rng.range(1.45, 1.8)),
+                size: DVec3::new(
+                    rng.range(1.75, 2.0),
+                    rng.range(4.2, 5.0),
+                    rng.range(1.45, 1.8),
+                ),
                 colour: vehicle_colour(rng),
             };
             Agent::new(rng, body, path, seconds)
@@ -424,7 +533,10 @@ mod tests {
             let mut s = 0.1;
             while s < path.length() {
                 let (p, _) = path.pose(s);
-                assert!((p - previous).length() < 0.1 + 1e-6, "jump at s={s} for {turn:?}");
+                assert!(
+                    (p - previous).length() < 0.1 + 1e-6,
+                    "jump at s={s} for {turn:?}"
+                );
                 previous = p;
                 s += 0.1;
             }
@@ -450,13 +562,22 @@ mod tests {
     fn routes_never_leave_the_grid() {
         let roads = RoadSpec::default();
         // Heading +x towards the east edge: straight on would leave the grid at (9, 7).
-        let (path, taken) = plan_route(&roads, (7, 7), DVec2::X, 10.0, &[Turn::Straight, Turn::Left, Turn::Left]);
+        let (path, taken) = plan_route(
+            &roads,
+            (7, 7),
+            DVec2::X,
+            10.0,
+            &[Turn::Straight, Turn::Left, Turn::Left],
+        );
         assert_ne!(taken[0], Turn::Straight);
         let (lo, hi) = roads.extent();
         let mut s = 0.0;
         while s < path.length() {
             let p = path.pose(s).0;
-            assert!(p.x > lo.x && p.y > lo.y && p.x < hi.x && p.y < hi.y, "{p} at s={s}");
+            assert!(
+                p.x > lo.x && p.y > lo.y && p.x < hi.x && p.y < hi.y,
+                "{p} at s={s}"
+            );
             s += 1.0;
         }
     }
@@ -465,13 +586,21 @@ mod tests {
     fn bicycle_model_drives_a_circle_of_the_right_radius() {
         let steering: f64 = 0.2;
         let radius = WHEELBASE / steering.tan();
-        let mut state = BicycleState { position: DVec2::ZERO, yaw: 0.0, speed: 5.0 };
+        let mut state = BicycleState {
+            position: DVec2::ZERO,
+            yaw: 0.0,
+            speed: 5.0,
+        };
         let quarter = std::f64::consts::FRAC_PI_2 * radius / 5.0;
         let steps = 200;
         for _ in 0..steps {
             state = state.advance(0.0, steering, quarter / steps as f64);
         }
         assert!((state.yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
-        assert!((state.position - DVec2::new(radius, radius)).length() < 0.01 * radius, "{:?} r={radius}", state.position);
+        assert!(
+            (state.position - DVec2::new(radius, radius)).length() < 0.01 * radius,
+            "{:?} r={radius}",
+            state.position
+        );
     }
 }

@@ -26,7 +26,14 @@ pub struct RoadSpec {
 
 impl Default for RoadSpec {
     fn default() -> Self {
-        Self { pitch: 60.0, lane_width: 3.5, half_width: 6.0, corner_radius: 6.0, kerb_height: 0.15, count: 9 }
+        Self {
+            pitch: 60.0,
+            lane_width: 3.5,
+            half_width: 6.0,
+            corner_radius: 6.0,
+            kerb_height: 0.15,
+            count: 9,
+        }
     }
 }
 
@@ -44,7 +51,10 @@ impl RoadSpec {
 
     pub fn extent(&self) -> (DVec2, DVec2) {
         let margin = self.pitch * 0.5;
-        (DVec2::splat(-margin), DVec2::splat((self.count - 1) as f64 * self.pitch + margin))
+        (
+            DVec2::splat(-margin),
+            DVec2::splat((self.count - 1) as f64 * self.pitch + margin),
+        )
     }
 }
 
@@ -89,7 +99,9 @@ pub struct VehicleBody {
 impl VehicleBody {
     /// A car body and a cabin, as two boxes.
     pub fn solids(&self, instance: u32) -> [Solid; 2] {
-        let material = Material::Vehicle { colour: self.colour };
+        let material = Material::Vehicle {
+            colour: self.colour,
+        };
         let (s, c) = self.yaw.sin_cos();
         let forward = DVec2::new(c, s);
         let body = Shape::Box {
@@ -106,14 +118,31 @@ impl VehicleBody {
             z_min: self.size.z * 0.6,
             z_max: self.size.z,
         };
-        [Solid { shape: body, material, instance }, Solid { shape: cabin, material, instance }]
+        [
+            Solid {
+                shape: body,
+                material,
+                instance,
+            },
+            Solid {
+                shape: cabin,
+                material,
+                instance,
+            },
+        ]
     }
 }
 
 pub fn vehicle_colour(rng: &mut Rng) -> [u8; 3] {
     const PALETTE: [[u8; 3]; 8] = [
-        [200, 30, 30], [30, 60, 170], [230, 230, 230], [25, 25, 28],
-        [120, 124, 130], [200, 160, 30], [30, 120, 60], [160, 170, 185],
+        [200, 30, 30],
+        [30, 60, 170],
+        [230, 230, 230],
+        [25, 25, 28],
+        [120, 124, 130],
+        [200, 160, 30],
+        [30, 120, 60],
+        [160, 170, 185],
     ];
     PALETTE[rng.below(PALETTE.len() as u64) as usize]
 }
@@ -146,23 +175,42 @@ impl City {
                     1 => {
                         let h = inner * 0.5;
                         vec![
-                            (center + DVec2::new(-h, 0.0), DVec2::new(h * rng.range(0.7, 0.95), inner * rng.range(0.6, 0.95))),
-                            (center + DVec2::new(h, 0.0), DVec2::new(h * rng.range(0.7, 0.95), inner * rng.range(0.6, 0.95))),
+                            (
+                                center + DVec2::new(-h, 0.0),
+                                DVec2::new(h * rng.range(0.7, 0.95), inner * rng.range(0.6, 0.95)),
+                            ),
+                            (
+                                center + DVec2::new(h, 0.0),
+                                DVec2::new(h * rng.range(0.7, 0.95), inner * rng.range(0.6, 0.95)),
+                            ),
                         ]
                     }
                     _ => {
                         let h = inner * 0.5;
                         [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)]
                             .into_iter()
-                            .map(|(sx, sy)| (center + DVec2::new(sx * h, sy * h), DVec2::splat(h * rng.range(0.55, 0.9))))
+                            .map(|(sx, sy)| {
+                                (
+                                    center + DVec2::new(sx * h, sy * h),
+                                    DVec2::splat(h * rng.range(0.55, 0.9)),
+                                )
+                            })
                             .collect()
                     }
                 };
                 for (c, half) in footprints {
                     let height = rng.range(6.0, 30.0);
                     solids.push(Solid {
-                        shape: Shape::Box { center: c, half, yaw: 0.0, z_min: roads.kerb_height, z_max: height },
-                        material: Material::Building { hue: rng.below(6) as u8 },
+                        shape: Shape::Box {
+                            center: c,
+                            half,
+                            yaw: 0.0,
+                            z_min: roads.kerb_height,
+                            z_max: height,
+                        },
+                        material: Material::Building {
+                            hue: rng.below(6) as u8,
+                        },
                         instance: 0,
                     });
                 }
@@ -179,12 +227,37 @@ impl City {
                         };
                         let at = center + local;
                         if rng.chance(0.45) {
-                            solids.push(Solid { shape: Shape::Cylinder { center: at, radius: 0.12, z_min: 0.0, z_max: 7.0 }, material: Material::Pole, instance: 0 });
+                            solids.push(Solid {
+                                shape: Shape::Cylinder {
+                                    center: at,
+                                    radius: 0.12,
+                                    z_min: 0.0,
+                                    z_max: 7.0,
+                                },
+                                material: Material::Pole,
+                                instance: 0,
+                            });
                         } else {
                             let trunk = rng.range(2.0, 3.2);
                             let crown = rng.range(1.4, 2.4);
-                            solids.push(Solid { shape: Shape::Cylinder { center: at, radius: 0.18, z_min: 0.0, z_max: trunk + crown * 0.5 }, material: Material::Trunk, instance: 0 });
-                            solids.push(Solid { shape: Shape::Sphere { center: at.extend(trunk + crown), radius: crown }, material: Material::Foliage, instance: 0 });
+                            solids.push(Solid {
+                                shape: Shape::Cylinder {
+                                    center: at,
+                                    radius: 0.18,
+                                    z_min: 0.0,
+                                    z_max: trunk + crown * 0.5,
+                                },
+                                material: Material::Trunk,
+                                instance: 0,
+                            });
+                            solids.push(Solid {
+                                shape: Shape::Sphere {
+                                    center: at.extend(trunk + crown),
+                                    radius: crown,
+                                },
+                                material: Material::Foliage,
+                                instance: 0,
+                            });
                         }
                         s += rng.range(9.0, 16.0);
                     }
@@ -204,14 +277,32 @@ impl City {
                     while s < roads.pitch - roads.half_width - roads.corner_radius - 3.0 {
                         if rng.chance(0.35) {
                             let (center, yaw) = if axis_x {
-                                (start + DVec2::new(s, side * strip), if side > 0.0 { std::f64::consts::PI } else { 0.0 })
+                                (
+                                    start + DVec2::new(s, side * strip),
+                                    if side > 0.0 {
+                                        std::f64::consts::PI
+                                    } else {
+                                        0.0
+                                    },
+                                )
                             } else {
-                                (start + DVec2::new(-side * strip, s), if side > 0.0 { std::f64::consts::FRAC_PI_2 } else { -std::f64::consts::FRAC_PI_2 })
+                                (
+                                    start + DVec2::new(-side * strip, s),
+                                    if side > 0.0 {
+                                        std::f64::consts::FRAC_PI_2
+                                    } else {
+                                        -std::f64::consts::FRAC_PI_2
+                                    },
+                                )
                             };
                             parked.push(VehicleBody {
                                 center,
                                 yaw,
-                                size: DVec3::new(rng.range(1.75, 1.95), rng.range(4.2, 4.8), rng.range(1.45, 1.7)),
+                                size: DVec3::new(
+                                    rng.range(1.75, 1.95),
+                                    rng.range(4.2, 4.8),
+                                    rng.range(1.45, 1.7),
+                                ),
                                 colour: vehicle_colour(&mut rng),
                             });
                         }
@@ -220,7 +311,11 @@ impl City {
                 }
             }
         }
-        Self { roads, solids, parked }
+        Self {
+            roads,
+            solids,
+            parked,
+        }
     }
 }
 
@@ -251,7 +346,8 @@ pub fn asphalt_albedo(roads: &RoadSpec, p: DVec2) -> ([f64; 3], f64) {
     }
     // Stop lines before each junction.
     let stop_line = |across: f64, along_from_center: f64| {
-        across.abs() < roads.lane_width && (along_from_center.abs() - (roads.half_width + 1.0)).abs() < 0.2
+        across.abs() < roads.lane_width
+            && (along_from_center.abs() - (roads.half_width + 1.0)).abs() < 0.2
     };
     if (stop_line(dy, dx) && dx * dy < 0.0) || (stop_line(dx, dy) && dx * dy > 0.0) {
         colour = [0.88, 0.88, 0.86];
@@ -269,26 +365,41 @@ pub fn solid_albedo(material: Material, p: DVec3, normal: DVec3) -> ([f64; 3], f
     match material {
         Material::Asphalt => ([0.16, 0.16, 0.17], 0.12),
         Material::Kerb => {
-            let tile = ((p.x / 1.2).floor() as i64 + (p.y / 1.2).floor() as i64).rem_euclid(2) as f64;
+            let tile =
+                ((p.x / 1.2).floor() as i64 + (p.y / 1.2).floor() as i64).rem_euclid(2) as f64;
             let grain = 0.9 + 0.2 * value_noise(p.x * 3.0, p.y * 3.0, 21);
             let v = (0.5 + 0.05 * tile) * grain;
-            if normal.z.abs() < 0.5 { ([0.62, 0.62, 0.6], 0.35) } else { ([v, v * 0.98, v * 0.93], 0.3) }
+            if normal.z.abs() < 0.5 {
+                ([0.62, 0.62, 0.6], 0.35)
+            } else {
+                ([v, v * 0.98, v * 0.93], 0.3)
+            }
         }
         Material::Building { hue } => {
             const WALLS: [[f64; 3]; 6] = [
-                [0.72, 0.66, 0.58], [0.55, 0.38, 0.3], [0.62, 0.64, 0.68], [0.8, 0.78, 0.7], [0.45, 0.47, 0.5], [0.7, 0.55, 0.42],
+                [0.72, 0.66, 0.58],
+                [0.55, 0.38, 0.3],
+                [0.62, 0.64, 0.68],
+                [0.8, 0.78, 0.7],
+                [0.45, 0.47, 0.5],
+                [0.7, 0.55, 0.42],
             ];
             let wall = WALLS[hue as usize % WALLS.len()];
             if normal.z.abs() > 0.5 {
                 return ([0.35, 0.34, 0.33], 0.2);
             }
             // Windows: a 3 m x 3.2 m grid of dark glass on every facade.
-            let along = if normal.x.abs() > normal.y.abs() { p.y } else { p.x };
+            let along = if normal.x.abs() > normal.y.abs() {
+                p.y
+            } else {
+                p.x
+            };
             let u = along.rem_euclid(3.0);
             let v = (p.z - 0.15).rem_euclid(3.2);
             let window = (0.6..2.4).contains(&u) && (0.9..2.5).contains(&v) && p.z > 1.0;
             if window {
-                let tint = 0.15 + 0.1 * hash2((along / 3.0).floor() as i64, (p.z / 3.2).floor() as i64, 31);
+                let tint = 0.15
+                    + 0.1 * hash2((along / 3.0).floor() as i64, (p.z / 3.2).floor() as i64, 31);
                 ([tint, tint * 1.1, tint * 1.3], 0.1)
             } else {
                 let grain = 0.92 + 0.16 * value_noise(along * 2.0, p.z * 2.0, 32);
@@ -302,7 +413,11 @@ pub fn solid_albedo(material: Material, p: DVec3, normal: DVec3) -> ([f64; 3], f
             ([0.12 + 0.1 * n, 0.3 + 0.2 * n, 0.1 + 0.06 * n], 0.25)
         }
         Material::Vehicle { colour } => {
-            let c = [f64::from(colour[0]) / 255.0, f64::from(colour[1]) / 255.0, f64::from(colour[2]) / 255.0];
+            let c = [
+                f64::from(colour[0]) / 255.0,
+                f64::from(colour[1]) / 255.0,
+                f64::from(colour[2]) / 255.0,
+            ];
             // Darker glass on the cabin's sides.
             if normal.z.abs() < 0.5 && p.z > 1.05 {
                 ([c[0] * 0.25, c[1] * 0.25, c[2] * 0.3], 0.15)

@@ -18,7 +18,9 @@ use super::rng::token;
 use super::scene::{KEYFRAME_EVERY, SceneWorld};
 use crate::error::{Result, SensorError};
 use crate::lidar_file::{LidarLayout, encode_points};
-use crate::nuscenes::tables::{CalibratedSensor, EgoPose, Log, Sample, SampleAnnotation, SampleData, Scene, Sensor};
+use crate::nuscenes::tables::{
+    CalibratedSensor, EgoPose, Log, Sample, SampleAnnotation, SampleData, Scene, Sensor,
+};
 
 pub const VERSION: &str = "v1.0-synth";
 
@@ -26,7 +28,9 @@ pub const VERSION: &str = "v1.0-synth";
 pub enum ImageEncoding {
     /// Lossless (the default): reconstruction metrics measure the model, not the codec.
     Png,
-    Jpeg { quality: u8 },
+    Jpeg {
+        quality: u8,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -71,7 +75,11 @@ pub struct SynthSummary {
 
 impl SynthSummary {
     pub fn frames_per_second(&self) -> f64 {
-        if self.seconds > 0.0 { self.frames as f64 / self.seconds } else { 0.0 }
+        if self.seconds > 0.0 {
+            self.frames as f64 / self.seconds
+        } else {
+            0.0
+        }
     }
 }
 
@@ -102,20 +110,35 @@ fn rotation_wxyz(pose: &Pose) -> [f64; 4] {
 }
 
 /// Generates the dataset under `out`. `progress(frames_done, frames_total)` is called per frame.
-pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize, usize)) -> Result<SynthSummary> {
+pub fn generate(
+    out: &Path,
+    config: &SynthConfig,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<SynthSummary> {
     let started = Instant::now();
     let mut tables = Tables::default();
-    let channels: Vec<String> = CAMERAS.iter().map(|c| c.channel.name().to_string()).chain(["LIDAR_TOP".to_string()]).collect();
+    let channels: Vec<String> = CAMERAS
+        .iter()
+        .map(|c| c.channel.name().to_string())
+        .chain(["LIDAR_TOP".to_string()])
+        .collect();
     for (index, channel) in channels.iter().enumerate() {
         tables.sensor.push(Sensor {
             token: token(0, "sensor", index as u64),
             channel: channel.clone(),
-            modality: if channel == "LIDAR_TOP" { "lidar".into() } else { "camera".into() },
+            modality: if channel == "LIDAR_TOP" {
+                "lidar".into()
+            } else {
+                "camera".into()
+            },
         });
     }
     let ticks_per_scene = ((config.seconds * super::scene::RATE_HZ).round() as usize).max(1);
     let total = ticks_per_scene * config.scenes;
-    let mut summary = SynthSummary { scenes: config.scenes, ..Default::default() };
+    let mut summary = SynthSummary {
+        scenes: config.scenes,
+        ..Default::default()
+    };
     let mut annotation_chain: BTreeMap<String, Vec<usize>> = BTreeMap::new();
     let category = token(0, "category", 0);
 
@@ -124,9 +147,17 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
         let world = SceneWorld::new(seed, config.seconds, config.agents);
         let name = format!("synth-{seed:06}");
         let log_token = token(seed, "log", 0);
-        tables.log.push(Log { token: log_token.clone(), logfile: name.clone(), vehicle: "synth".into(), date_captured: "2026-01-01".into(), location: "synth-city".into() });
+        tables.log.push(Log {
+            token: log_token.clone(),
+            logfile: name.clone(),
+            vehicle: "synth".into(),
+            date_captured: "2026-01-01".into(),
+            location: "synth-city".into(),
+        });
         // One calibration per sensor per scene, as nuScenes has one per log.
-        let calib_tokens: Vec<String> = (0..channels.len()).map(|i| token(seed, "calibrated_sensor", i as u64)).collect();
+        let calib_tokens: Vec<String> = (0..channels.len())
+            .map(|i| token(seed, "calibrated_sensor", i as u64))
+            .collect();
         for (i, mount) in CAMERAS.iter().enumerate() {
             let k = mount.intrinsics(config.camera_width, config.camera_height);
             tables.calibrated_sensor.push(CalibratedSensor {
@@ -134,7 +165,11 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
                 sensor_token: tables.sensor[i].token.clone(),
                 translation: mount.translation,
                 rotation: mount.rotation,
-                camera_intrinsic: vec![vec![k.fx, 0.0, k.cx], vec![0.0, k.fy, k.cy], vec![0.0, 0.0, 1.0]],
+                camera_intrinsic: vec![
+                    vec![k.fx, 0.0, k.cx],
+                    vec![0.0, k.fy, k.cy],
+                    vec![0.0, 0.0, 1.0],
+                ],
             });
         }
         tables.calibrated_sensor.push(CalibratedSensor {
@@ -145,15 +180,24 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
             camera_intrinsic: Vec::new(),
         });
 
-        let keyframe_ticks: Vec<usize> = (0..world.ticks).filter(|k| k % KEYFRAME_EVERY == 0).collect();
-        let sample_tokens: Vec<String> = keyframe_ticks.iter().map(|&k| token(seed, "sample", k as u64)).collect();
+        let keyframe_ticks: Vec<usize> = (0..world.ticks)
+            .filter(|k| k % KEYFRAME_EVERY == 0)
+            .collect();
+        let sample_tokens: Vec<String> = keyframe_ticks
+            .iter()
+            .map(|&k| token(seed, "sample", k as u64))
+            .collect();
         let scene_token = token(seed, "scene", 0);
         for (i, &tick) in keyframe_ticks.iter().enumerate() {
             tables.sample.push(Sample {
                 token: sample_tokens[i].clone(),
                 timestamp: world.tick_time_us(tick),
                 scene_token: scene_token.clone(),
-                prev: if i > 0 { sample_tokens[i - 1].clone() } else { String::new() },
+                prev: if i > 0 {
+                    sample_tokens[i - 1].clone()
+                } else {
+                    String::new()
+                },
                 next: sample_tokens.get(i + 1).cloned().unwrap_or_default(),
             });
         }
@@ -162,7 +206,10 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
             log_token,
             nbr_samples: keyframe_ticks.len(),
             name: name.clone(),
-            description: format!("synthetic town drive, seed {seed}, turns {:?}", world.script.turns),
+            description: format!(
+                "synthetic town drive, seed {seed}, turns {:?}",
+                world.script.turns
+            ),
             first_sample_token: sample_tokens.first().cloned().unwrap_or_default(),
             last_sample_token: sample_tokens.last().cloned().unwrap_or_default(),
         });
@@ -180,7 +227,8 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
         let mut previous_data: Vec<Option<usize>> = vec![None; channels.len()];
         for tick in 0..world.ticks {
             let keyframe = tick % KEYFRAME_EVERY == 0;
-            let nearest_key = ((tick + KEYFRAME_EVERY / 2) / KEYFRAME_EVERY).min(keyframe_ticks.len() - 1);
+            let nearest_key =
+                ((tick + KEYFRAME_EVERY / 2) / KEYFRAME_EVERY).min(keyframe_ticks.len() - 1);
             let sample_token = sample_tokens[nearest_key].clone();
             let folder = if keyframe { "samples" } else { "sweeps" };
             let lidar_time = world.tick_time_us(tick);
@@ -192,11 +240,29 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
                 let global_from_camera = global_from_ego * mount.ego_from_camera();
                 let snapshot = world.snapshot(time);
                 let intrinsics = mount.intrinsics(config.camera_width, config.camera_height);
-                let (image, _) = render_camera(&snapshot, &intrinsics, &global_from_camera, config.far);
+                let (image, _) =
+                    render_camera(&snapshot, &intrinsics, &global_from_camera, config.far);
                 let (bytes, extension) = encode_image(&image, config.image_encoding)?;
-                let file = format!("{folder}/{}/{name}__{}__{time}.{extension}", mount.channel.name(), mount.channel.name());
+                let file = format!(
+                    "{folder}/{}/{name}__{}__{time}.{extension}",
+                    mount.channel.name(),
+                    mount.channel.name()
+                );
                 write_file(&out.join(&file), &bytes)?;
-                push_sample_data(&mut tables, &mut previous_data[i], seed, &sample_token, &calib_tokens[i], time, &global_from_ego, keyframe, &file, extension, config.camera_width, config.camera_height);
+                push_sample_data(
+                    &mut tables,
+                    &mut previous_data[i],
+                    seed,
+                    &sample_token,
+                    &calib_tokens[i],
+                    time,
+                    &global_from_ego,
+                    keyframe,
+                    &file,
+                    extension,
+                    config.camera_width,
+                    config.camera_height,
+                );
             }
 
             // LiDAR at the tick time.
@@ -204,11 +270,28 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
             let global_from_lidar = global_from_ego * ego_from_lidar();
             let snapshot = world.snapshot(lidar_time);
             let noise_seed = seed.wrapping_mul(1_000_003).wrapping_add(tick as u64);
-            let (points, ids) = scan_lidar(&snapshot, &config.lidar, &global_from_lidar, noise_seed);
+            let (points, ids) =
+                scan_lidar(&snapshot, &config.lidar, &global_from_lidar, noise_seed);
             summary.lidar_points += points.len();
             let file = format!("{folder}/LIDAR_TOP/{name}__LIDAR_TOP__{lidar_time}.pcd.bin");
-            write_file(&out.join(&file), &encode_points(&points, LidarLayout::NuScenes))?;
-            push_sample_data(&mut tables, &mut previous_data[6], seed, &sample_token, &calib_tokens[6], lidar_time, &global_from_ego, keyframe, &file, "pcd", 0, 0);
+            write_file(
+                &out.join(&file),
+                &encode_points(&points, LidarLayout::NuScenes),
+            )?;
+            push_sample_data(
+                &mut tables,
+                &mut previous_data[6],
+                seed,
+                &sample_token,
+                &calib_tokens[6],
+                lidar_time,
+                &global_from_ego,
+                keyframe,
+                &file,
+                "pcd",
+                0,
+                0,
+            );
 
             if keyframe {
                 summary.keyframes += 1;
@@ -221,11 +304,19 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
                     let index = tables.sample_annotation.len();
                     let num_lidar_pts = ids.iter().filter(|&&id| id == instance).count() as i64;
                     tables.sample_annotation.push(SampleAnnotation {
-                        token: token(seed, "sample_annotation", index as u64 * 7919 + u64::from(instance)),
+                        token: token(
+                            seed,
+                            "sample_annotation",
+                            index as u64 * 7919 + u64::from(instance),
+                        ),
                         sample_token: sample_tokens[tick / KEYFRAME_EVERY].clone(),
                         instance_token: instance_token.clone(),
                         visibility_token: String::new(),
-                        attribute_tokens: vec![if moving { "vehicle.moving".into() } else { "vehicle.parked".into() }],
+                        attribute_tokens: vec![if moving {
+                            "vehicle.moving".into()
+                        } else {
+                            "vehicle.parked".into()
+                        }],
                         translation: [body.center.x, body.center.y, body.size.z * 0.5],
                         size: [body.size.x, body.size.y, body.size.z],
                         rotation: {
@@ -237,7 +328,10 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
                         num_lidar_pts,
                         num_radar_pts: 0,
                     });
-                    annotation_chain.entry(instance_token).or_default().push(index);
+                    annotation_chain
+                        .entry(instance_token)
+                        .or_default()
+                        .push(index);
                 }
             }
             summary.frames += 1;
@@ -263,7 +357,9 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
     }
 
     let dir = out.join(VERSION);
-    let write_table = |name: &str, rows: &dyn erased::Rows| -> Result<()> { write_file(&dir.join(format!("{name}.json")), &rows.to_json()) };
+    let write_table = |name: &str, rows: &dyn erased::Rows| -> Result<()> {
+        write_file(&dir.join(format!("{name}.json")), &rows.to_json())
+    };
     write_table("scene", &tables.scene)?;
     write_table("sample", &tables.sample)?;
     write_table("sample_data", &tables.sample_data)?;
@@ -274,7 +370,12 @@ pub fn generate(out: &Path, config: &SynthConfig, mut progress: impl FnMut(usize
     write_table("sample_annotation", &tables.sample_annotation)?;
     write_table("instance", &tables.instance)?;
     write_table("ego_control", &tables.ego_control)?;
-    write_table("category", &vec![json!({"token": category, "name": "vehicle.car", "description": "Synthetic passenger car."})])?;
+    write_table(
+        "category",
+        &vec![
+            json!({"token": category, "name": "vehicle.car", "description": "Synthetic passenger car."}),
+        ],
+    )?;
     let empty: Vec<serde_json::Value> = Vec::new();
     for name in ["attribute", "visibility", "map"] {
         write_table(name, &empty)?;
@@ -321,7 +422,9 @@ fn push_sample_data(
         rotation: rotation_wxyz(global_from_ego),
         translation: global_from_ego.translation.to_array(),
     });
-    let prev = previous.map(|p| tables.sample_data[p].token.clone()).unwrap_or_default();
+    let prev = previous
+        .map(|p| tables.sample_data[p].token.clone())
+        .unwrap_or_default();
     if let Some(p) = *previous {
         tables.sample_data[p].next = data_token.clone();
     }
@@ -342,16 +445,26 @@ fn push_sample_data(
     *previous = Some(index);
 }
 
-fn encode_image(image: &image::RgbImage, encoding: ImageEncoding) -> Result<(Vec<u8>, &'static str)> {
+fn encode_image(
+    image: &image::RgbImage,
+    encoding: ImageEncoding,
+) -> Result<(Vec<u8>, &'static str)> {
     let mut bytes = Vec::new();
     match encoding {
         ImageEncoding::Png => {
-            image.write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png).map_err(|e| SensorError::Other(format!("PNG encoding: {e}")))?;
+            image
+                .write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png)
+                .map_err(|e| SensorError::Other(format!("PNG encoding: {e}")))?;
             Ok((bytes, "png"))
         }
         ImageEncoding::Jpeg { quality } => {
-            let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, quality.clamp(1, 100));
-            image.write_with_encoder(encoder).map_err(|e| SensorError::Other(format!("JPEG encoding: {e}")))?;
+            let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(
+                &mut bytes,
+                quality.clamp(1, 100),
+            );
+            image
+                .write_with_encoder(encoder)
+                .map_err(|e| SensorError::Other(format!("JPEG encoding: {e}")))?;
             Ok((bytes, "jpg"))
         }
     }
