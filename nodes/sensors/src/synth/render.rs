@@ -78,11 +78,7 @@ impl Snapshot {
     /// The closest hit along a ray within `t_max`, or None for open sky.
     pub fn cast(&self, ray: &Ray, t_max: f64) -> Option<Hit> {
         // The ground plane (asphalt) bounds the search for rays going down.
-        let t_ground = if ray.direction.z < -1e-12 {
-            -ray.origin.z / ray.direction.z
-        } else {
-            f64::INFINITY
-        };
+        let t_ground = ground_distance(ray);
         let mut best: Option<(f64, DVec3, usize)> = None;
         let limit = t_max.min(t_ground);
 
@@ -159,24 +155,13 @@ impl Snapshot {
                     instance: solid.instance,
                 })
             }
-            _ if t_ground <= t_max => Some(Hit {
-                t: t_ground,
-                point: ray.at(t_ground),
-                normal: DVec3::Z,
-                material: Material::Asphalt,
-                instance: 0,
-            }),
-            _ => None,
+            _ => ground_hit(ray, t_ground, t_max),
         }
     }
 
     /// The same query by testing every solid: the reference the grid is checked against.
     pub fn cast_brute_force(&self, ray: &Ray, t_max: f64) -> Option<Hit> {
-        let t_ground = if ray.direction.z < -1e-12 {
-            -ray.origin.z / ray.direction.z
-        } else {
-            f64::INFINITY
-        };
+        let t_ground = ground_distance(ray);
         let mut best: Option<Hit> = None;
         for solid in &self.solids {
             if let Some(hit) = solid.shape.intersect(ray, best.map_or(t_max, |b| b.t)) {
@@ -191,14 +176,7 @@ impl Snapshot {
         }
         match best {
             Some(hit) if hit.t <= t_ground => Some(hit),
-            _ if t_ground <= t_max => Some(Hit {
-                t: t_ground,
-                point: ray.at(t_ground),
-                normal: DVec3::Z,
-                material: Material::Asphalt,
-                instance: 0,
-            }),
-            _ => None,
+            _ => ground_hit(ray, t_ground, t_max),
         }
     }
 
@@ -220,6 +198,26 @@ impl Snapshot {
             .filter(move |s| s.instance == instance)
             .map(|s| &s.shape)
     }
+}
+
+/// Distance along a ray to the ground plane z = 0 (infinite for rays that do not go down).
+fn ground_distance(ray: &Ray) -> f64 {
+    if ray.direction.z < -1e-12 {
+        -ray.origin.z / ray.direction.z
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// The asphalt hit at `t_ground`, if it is within range.
+fn ground_hit(ray: &Ray, t_ground: f64, t_max: f64) -> Option<Hit> {
+    (t_ground <= t_max).then(|| Hit {
+        t: t_ground,
+        point: ray.at(t_ground),
+        normal: DVec3::Z,
+        material: Material::Asphalt,
+        instance: 0,
+    })
 }
 
 const SUN: DVec3 = DVec3::new(0.45, 0.3, 0.84);
