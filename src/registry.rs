@@ -7,5 +7,6 @@ pub fn registry() -> Registry {
     let mut registry = Registry::new();
     bevworld_sensors::register(&mut registry);
     bevworld_sinks::register(&mut registry);
+    bevworld_pillarize::register(&mut registry);
     registry
 }

@@ -283,3 +283,48 @@ fn ctrl_c_drains_and_exits_cleanly() {
         .count() as u64;
     assert_eq!(written, produced);
 }
+
+#[test]
+fn pillarize_reports_its_counts_in_the_metrics() {
+    let dir = tempfile::tempdir().unwrap();
+    let graph = dir.path().join("pillars.yaml");
+    std::fs::write(
+        &graph,
+        format!(
+            "nodes:\n  - {{id: source, kind: dataset_source, params: {{data: \"{}\", skip_images: true}}}}\n  - {{id: pillars, kind: pillarize}}\nedges:\n  - {{from: source.frame, to: pillars.frame}}\n",
+            nuscenes().display()
+        ),
+    )
+    .unwrap();
+    let metrics = dir.path().join("m.json");
+    let output = bevworld(&[
+        "run",
+        graph.to_str().unwrap(),
+        "--metrics",
+        metrics.to_str().unwrap(),
+        "--no-progress",
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
+    let node = report["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == "pillars")
+        .unwrap();
+    let extra = &node["extra"];
+    assert_eq!(extra["points_in"], 34_688.0);
+    let accounted = [
+        "points_kept",
+        "dropped_outside_range",
+        "dropped_non_finite",
+        "dropped_by_pillar_limit",
+        "points_in_dropped_pillars",
+    ]
+    .iter()
+    .map(|k| extra[*k].as_f64().unwrap())
+    .sum::<f64>();
+    assert_eq!(accounted, 34_688.0);
+    assert!(extra["mean_pillars_per_frame"].as_f64().unwrap() > 1000.0);
+}

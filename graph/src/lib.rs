@@ -25,7 +25,7 @@ pub use diagnostic::{Diagnostic, Diagnostics};
 pub use error::{NodeError, RunError};
 pub use message::{Header, Instant, Message};
 pub use metrics::{NodeReport, RunReport};
-pub use node::{Inputs, Node, Outputs, Role, Sink, Source, SourceInfo, Task};
+pub use node::{Figures, Inputs, Node, Outputs, Role, Sink, Source, SourceInfo, Task};
 pub use pacing::Pacing;
 pub use policy::EdgePolicy;
 pub use port::{PortSpec, PortType};

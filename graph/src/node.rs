@@ -28,7 +28,16 @@ pub trait Source: Send {
     /// The time of validity drives recorded-time pacing and stamps the messages' headers;
     /// `out.set_time_of_validity` must be called before sending.
     fn next(&mut self, out: &mut Outputs) -> Result<Option<i64>, NodeError>;
+
+    /// Figures of the node's own to add to its metrics at the end of the run (named counters
+    /// and means, e.g. points dropped by a limit, mean PSNR).
+    fn report(&self) -> Figures {
+        Figures::new()
+    }
 }
+
+/// Named figures a node reports into its metrics.
+pub type Figures = std::collections::BTreeMap<String, f64>;
 
 /// Transforms inputs into outputs.
 pub trait Task: Send {
@@ -43,6 +52,11 @@ pub trait Task: Send {
     fn finish(&mut self, _out: &mut Outputs) -> Result<(), NodeError> {
         Ok(())
     }
+
+    /// See `Source::report`.
+    fn report(&self) -> Figures {
+        Figures::new()
+    }
 }
 
 /// Consumes inputs (writes files, prints metrics).
@@ -56,6 +70,11 @@ pub trait Sink: Send {
     /// Called once after every input closed: flush and close files.
     fn finish(&mut self) -> Result<(), NodeError> {
         Ok(())
+    }
+
+    /// See `Source::report`.
+    fn report(&self) -> Figures {
+        Figures::new()
     }
 }
 

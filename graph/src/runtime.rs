@@ -392,7 +392,13 @@ enum Step<T> {
     Stop,
 }
 
-fn run_source(mut thread: NodeThread, mut source: Box<dyn Source>, shared: &Shared) -> NodeReport {
+fn run_source(thread: NodeThread, mut source: Box<dyn Source>, shared: &Shared) -> NodeReport {
+    let mut report = drive_source(thread, source.as_mut(), shared);
+    report.extra = source.report();
+    report
+}
+
+fn drive_source(mut thread: NodeThread, source: &mut dyn Source, shared: &Shared) -> NodeReport {
     let info = match guarded(&thread.who, shared, || source.start()) {
         Step::Ok(info) => info,
         _ => return thread.report,
@@ -456,7 +462,20 @@ enum Consumer {
     Sink(Box<dyn Sink>),
 }
 
-fn run_consumer(mut thread: NodeThread, mut consumer: Consumer, shared: &Shared) -> NodeReport {
+fn run_consumer(thread: NodeThread, mut consumer: Consumer, shared: &Shared) -> NodeReport {
+    let mut report = drive_consumer(thread, &mut consumer, shared);
+    report.extra = match &consumer {
+        Consumer::Task(task) => task.report(),
+        Consumer::Sink(sink) => sink.report(),
+    };
+    report
+}
+
+fn drive_consumer(
+    mut thread: NodeThread,
+    mut consumer: &mut Consumer,
+    shared: &Shared,
+) -> NodeReport {
     let started = match &mut consumer {
         Consumer::Task(task) => guarded(&thread.who, shared, || task.start()),
         Consumer::Sink(sink) => guarded(&thread.who, shared, || sink.start()),

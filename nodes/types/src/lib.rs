@@ -7,11 +7,13 @@
 pub mod action;
 pub mod camera;
 pub mod frame;
+pub mod pillars;
 pub mod point_cloud;
 pub mod pose;
 
 pub use action::EgoAction;
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
 pub use frame::SensorFrame;
+pub use pillars::{PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 pub use point_cloud::{LidarPoint, PointCloud};
 pub use pose::{Pose, pose_from_translation_quaternion};

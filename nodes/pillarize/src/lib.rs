@@ -1,0 +1,25 @@
+//! PointPillars pillarization: points in the ego frame to the non-empty pillars of a BEV grid.
+
+pub mod dense;
+pub mod node;
+pub mod sparse;
+
+pub use node::register;
+pub use sparse::Pillarizer;
+
+/// Limits on what one sweep may produce. The defaults are mmdetection3d's for nuScenes
+/// PointPillars (20 points per pillar) with room for the paper's 384 x 384 grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    pub max_points_per_pillar: usize,
+    pub max_pillars: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            max_points_per_pillar: 20,
+            max_pillars: 40_000,
+        }
+    }
+}
