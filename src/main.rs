@@ -61,6 +61,9 @@ enum Command {
     /// Draw the LiDAR into each camera image, as the nuScenes devkit projects it, to check a
     /// dataset's calibration: writes OUT/<CHANNEL>.png and OUT/<CHANNEL>.csv (u,v,depth).
     Inspect(commands::inspect::InspectArgs),
+    /// Evaluate: Chamfer distance between clouds, forecasting baselines.
+    #[command(subcommand)]
+    Eval(commands::eval::EvalCommand),
     /// Show the Burn device that BURN_DEVICE selects and measure its matmul rate.
     Device {
         /// Matrix size for the measurement.
@@ -136,6 +139,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         }
         Command::Synth(args) => commands::synth::run(&args),
         Command::Inspect(args) => commands::inspect::run(&args),
+        Command::Eval(command) => commands::eval::run(&command),
         Command::Device { size } => {
             let (kind, device) = bevworld_device::from_env()?;
             println!("backend: {} ({device:?})", kind.name());

@@ -1,4 +1,5 @@
 //! Subcommands that are tools rather than graphs.
 
+pub mod eval;
 pub mod inspect;
 pub mod synth;

@@ -1,0 +1,246 @@
+//! `bevworld eval`: the Chamfer distance between two clouds, and the two forecasting baselines
+//! every world model must beat.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use bevworld_metrics::{Roi, chamfer_in_roi};
+use bevworld_sensors::lidar_file::{LidarLayout, NonFinitePolicy, decode_points};
+use bevworld_sensors::{Dataset, DatasetFormat, DatasetOptions};
+use bevworld_types::{PointCloud, Pose};
+use clap::{Args, Subcommand, ValueEnum};
+use glam::DVec3;
+
+#[derive(Subcommand)]
+pub enum EvalCommand {
+    /// Chamfer distance between a predicted and a ground-truth cloud (x, y, z only).
+    Chamfer(ChamferArgs),
+    /// Chamfer distance of the copy_last and ego_warp forecasts at several horizons.
+    Baselines(BaselinesArgs),
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum RoiName {
+    /// |x|, |y| <= 70 m, |z| <= 4.5 m (4D-Occ, Copilot4D).
+    #[value(name = "4docc")]
+    FourDOcc,
+    /// [-51.2, 51.2] x [-51.2, 51.2] x [-5, 3] m (ViDAR).
+    Vidar,
+}
+
+impl RoiName {
+    fn roi(self) -> Roi {
+        match self {
+            RoiName::FourDOcc => Roi::FOUR_D_OCC,
+            RoiName::Vidar => Roi::VIDAR,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum CloudFormat {
+    /// PLY with x, y, z properties.
+    Ply,
+    /// nuScenes .pcd.bin, float32 x 5.
+    Nuscenes,
+    /// KITTI .bin, float32 x 4.
+    Kitti,
+}
+
+#[derive(Args)]
+pub struct ChamferArgs {
+    #[arg(long)]
+    pub pred: PathBuf,
+    #[arg(long)]
+    pub gt: PathBuf,
+    #[arg(long, value_enum, default_value = "4docc")]
+    pub roi: RoiName,
+    /// Override the format chosen from the file extension.
+    #[arg(long, value_enum)]
+    pub format: Option<CloudFormat>,
+    /// Print one JSON object: {"chamfer", "pred_points", "gt_points"} (counts after the ROI).
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum BaselineFormat {
+    Kitti,
+    Nuscenes,
+    Synth,
+}
+
+#[derive(Args)]
+pub struct BaselinesArgs {
+    #[arg(long)]
+    pub data: PathBuf,
+    #[arg(long, value_enum)]
+    pub format: BaselineFormat,
+    /// Horizons in frames ahead of each scene's first frame, e.g. 1,3,5.
+    #[arg(long, value_delimiter = ',', default_value = "1,3,5")]
+    pub horizons: Vec<usize>,
+    #[arg(long, value_enum, default_value = "4docc")]
+    pub roi: RoiName,
+    /// Count horizons in 12 Hz sweeps instead of 2 Hz keyframes (nuScenes layout).
+    #[arg(long)]
+    pub sweeps: bool,
+    /// Print a JSON list of {method, horizon_frames, chamfer}.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(command: &EvalCommand) -> Result<ExitCode> {
+    match command {
+        EvalCommand::Chamfer(args) => chamfer_command(args),
+        EvalCommand::Baselines(args) => baselines_command(args),
+    }
+}
+
+/// Reads a cloud's x, y, z by format (from the extension unless given).
+pub fn read_cloud(path: &Path, format: Option<CloudFormat>) -> Result<Vec<[f64; 3]>> {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    let format = match format {
+        Some(format) => format,
+        None if name.ends_with(".ply") => CloudFormat::Ply,
+        None if name.ends_with(".pcd.bin") => CloudFormat::Nuscenes,
+        None if name.ends_with(".bin") => CloudFormat::Kitti,
+        None => bail!(
+            "{}: cannot tell the format from the extension (.ply, .pcd.bin, .bin); pass --format",
+            path.display()
+        ),
+    };
+    match format {
+        CloudFormat::Ply => Ok(bevworld_sinks::ply::read_ply(path)?
+            .iter()
+            .map(|p| [f64::from(p.x), f64::from(p.y), f64::from(p.z)])
+            .collect()),
+        CloudFormat::Nuscenes | CloudFormat::Kitti => {
+            let layout = if matches!(format, CloudFormat::Nuscenes) {
+                LidarLayout::NuScenes
+            } else {
+                LidarLayout::Kitti
+            };
+            let bytes =
+                std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+            let (points, _) = decode_points(&bytes, layout, NonFinitePolicy::Drop, path)?;
+            Ok(points
+                .iter()
+                .map(|p| [f64::from(p.x), f64::from(p.y), f64::from(p.z)])
+                .collect())
+        }
+    }
+}
+
+fn chamfer_command(args: &ChamferArgs) -> Result<ExitCode> {
+    let pred = read_cloud(&args.pred, args.format).context("--pred")?;
+    let gt = read_cloud(&args.gt, args.format).context("--gt")?;
+    let result = chamfer_in_roi(&pred, &gt, &args.roi.roi());
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({"chamfer": result.chamfer, "pred_points": result.pred_points, "gt_points": result.gt_points})
+        );
+    } else {
+        println!(
+            "chamfer {:.6} m^2 ({} predicted, {} ground-truth points in the ROI)",
+            result.chamfer, result.pred_points, result.gt_points
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A sweep's points moved by `target_from_lidar`.
+fn moved(cloud: &PointCloud, target_from_lidar: &Pose) -> Vec<[f64; 3]> {
+    cloud
+        .points
+        .iter()
+        .map(|p| {
+            target_from_lidar
+                .transform_point3(DVec3::new(p.x.into(), p.y.into(), p.z.into()))
+                .to_array()
+        })
+        .collect()
+}
+
+fn baselines_command(args: &BaselinesArgs) -> Result<ExitCode> {
+    if args.horizons.is_empty() || args.horizons.contains(&0) {
+        bail!("--horizons must be frame counts >= 1, e.g. 1,3,5");
+    }
+    let format = match args.format {
+        BaselineFormat::Kitti => DatasetFormat::Kitti,
+        BaselineFormat::Nuscenes => DatasetFormat::Nuscenes,
+        BaselineFormat::Synth => DatasetFormat::Synth,
+    };
+    let options = DatasetOptions {
+        format,
+        sweeps: args.sweeps,
+        skip_images: true,
+        ..Default::default()
+    };
+    let dataset = Dataset::open(&args.data, &options)
+        .with_context(|| format!("opening {}", args.data.display()))?;
+    // Frames grouped by scene, in order.
+    let names = dataset
+        .scene_names()
+        .into_iter()
+        .map(str::to_string)
+        .collect::<Vec<_>>();
+    let mut scenes: Vec<(String, Vec<usize>)> = Vec::new();
+    for (index, name) in names.iter().enumerate() {
+        match scenes.last_mut() {
+            Some((last, frames)) if last == name => frames.push(index),
+            _ => scenes.push((name.clone(), vec![index])),
+        }
+    }
+    let roi = args.roi.roi();
+    let mut rows = Vec::new();
+    for &horizon in &args.horizons {
+        let (mut copy_sum, mut warp_sum, mut count) = (0.0, 0.0, 0usize);
+        for (_, frames) in &scenes {
+            let Some(&target_index) = frames.get(horizon) else {
+                continue;
+            };
+            let first = dataset.read(frames[0]).context("reading the first frame")?;
+            let target = dataset
+                .read(target_index)
+                .context("reading the target frame")?;
+            // Evaluated in the target sweep's LiDAR frame, as 4D-Occ does.
+            let gt: Vec<[f64; 3]> = moved(&target.lidar, &Pose::IDENTITY);
+            let copy_last = moved(&first.lidar, &Pose::IDENTITY);
+            let global_from_target_lidar =
+                target.lidar.global_from_ego * target.lidar.ego_from_lidar;
+            let global_from_first_lidar = first.lidar.global_from_ego * first.lidar.ego_from_lidar;
+            let ego_warp = moved(
+                &first.lidar,
+                &(global_from_target_lidar.inverse() * global_from_first_lidar),
+            );
+            copy_sum += chamfer_in_roi(&copy_last, &gt, &roi).chamfer;
+            warp_sum += chamfer_in_roi(&ego_warp, &gt, &roi).chamfer;
+            count += 1;
+        }
+        if count == 0 {
+            bail!(
+                "no scene in {} has a frame {horizon} frames after its first ({} scene(s), longest {} frames)",
+                args.data.display(),
+                scenes.len(),
+                scenes.iter().map(|(_, f)| f.len()).max().unwrap_or(0)
+            );
+        }
+        rows.push(("copy_last", horizon, copy_sum / count as f64, count));
+        rows.push(("ego_warp", horizon, warp_sum / count as f64, count));
+    }
+    if args.json {
+        let list: Vec<serde_json::Value> = rows.iter().map(|(method, horizon, chamfer, _)| serde_json::json!({"method": method, "horizon_frames": horizon, "chamfer": chamfer})).collect();
+        println!("{}", serde_json::Value::Array(list));
+    } else {
+        println!(
+            "{:<10} {:>8} {:>14} {:>7}",
+            "method", "horizon", "chamfer m^2", "scenes"
+        );
+        for (method, horizon, chamfer, count) in rows {
+            println!("{method:<10} {horizon:>8} {chamfer:>14.4} {count:>7}");
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
