@@ -1,5 +1,7 @@
 //! Evaluation metrics. Every claim about accuracy in this project rests on these.
 
 pub mod chamfer;
+pub mod image;
 
 pub use chamfer::{ChamferResult, Roi, chamfer, chamfer_in_roi};
+pub use image::{Planes, psnr, rgb_planes, ssim};
