@@ -5,7 +5,7 @@
 use bevworld_types::{PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 
 use crate::Limits;
-use crate::sparse::cell_of;
+use crate::sparse::{cell_of, point_features};
 
 pub fn pillarize_dense(grid: &PillarGrid, limits: Limits, points: &[[f32; 4]]) -> Pillars {
     let (nx, ny) = grid.size();
@@ -60,17 +60,11 @@ pub fn pillarize_dense(grid: &PillarGrid, limits: Limits, points: &[[f32; 4]]) -
         for (k, &i) in bucket.iter().enumerate() {
             let p = points[i];
             let at = (slot * max_points + k) * PILLAR_FEATURES;
-            features[at..at + PILLAR_FEATURES].copy_from_slice(&[
-                p[0],
-                p[1],
-                p[2],
-                p[3],
-                p[0] - mean[0],
-                p[1] - mean[1],
-                p[2] - mean[2],
-                p[0] - cx,
-                p[1] - cy,
-            ]);
+            features[at..at + PILLAR_FEATURES].copy_from_slice(&point_features(
+                &p,
+                &mean,
+                (cx, cy),
+            ));
         }
         stats.points_kept += bucket.len();
         point_counts.push(bucket.len() as u32);

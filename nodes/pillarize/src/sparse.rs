@@ -21,6 +21,27 @@ pub struct Pillarizer {
     cell_to_pillar: Vec<u32>,
 }
 
+/// The 9 PointPillars features of a point: x, y, z, intensity, its offsets from the pillar's
+/// point mean, and its offsets from the pillar centre.
+#[inline]
+pub(crate) fn point_features(
+    p: &[f32; 4],
+    mean: &[f32; 3],
+    center: (f32, f32),
+) -> [f32; PILLAR_FEATURES] {
+    [
+        p[0],
+        p[1],
+        p[2],
+        p[3],
+        p[0] - mean[0],
+        p[1] - mean[1],
+        p[2] - mean[2],
+        p[0] - center.0,
+        p[1] - center.1,
+    ]
+}
+
 /// Cell of a point under the half-open rule, or None when outside.
 #[inline]
 pub(crate) fn cell_of(
@@ -166,17 +187,7 @@ impl Pillarizer {
             let (cx, cy) = self.grid.cell_center(cell % self.nx, cell / self.nx);
             for &index in &order[starts[slot] as usize..starts[slot + 1] as usize] {
                 let p = points[index as usize];
-                features.extend_from_slice(&[
-                    p[0],
-                    p[1],
-                    p[2],
-                    p[3],
-                    p[0] - mean[0],
-                    p[1] - mean[1],
-                    p[2] - mean[2],
-                    p[0] - cx,
-                    p[1] - cy,
-                ]);
+                features.extend_from_slice(&point_features(&p, &mean, (cx, cy)));
             }
             features.resize(
                 features.len() + (max_points - n as usize) * PILLAR_FEATURES,

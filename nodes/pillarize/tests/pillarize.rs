@@ -25,15 +25,7 @@ fn run(grid: PillarGrid, limits: Limits, points: &[[f32; 4]]) -> Pillars {
     assert_eq!(sparse.features, dense.features);
     assert_eq!(sparse.stats, dense.stats);
     let s = sparse.stats;
-    assert_eq!(
-        s.points_in,
-        s.points_kept
-            + s.outside_range
-            + s.non_finite
-            + s.dropped_by_pillar_limit
-            + s.points_in_dropped_pillars,
-        "every point is accounted for"
-    );
+    assert_eq!(s.points_in, s.accounted(), "every point is accounted for");
     sparse
 }
 
@@ -236,14 +228,7 @@ fn two_million_points_stay_within_the_limits() {
     // Output memory is bounded by the limits, whatever the input size.
     assert_eq!(pillars.features.len(), 12_000 * 16 * PILLAR_FEATURES);
     let s = pillars.stats;
-    assert_eq!(
-        s.points_in,
-        s.points_kept
-            + s.outside_range
-            + s.non_finite
-            + s.dropped_by_pillar_limit
-            + s.points_in_dropped_pillars
-    );
+    assert_eq!(s.points_in, s.accounted());
 }
 
 #[test]

@@ -134,3 +134,15 @@ pub struct PillarStats {
     pub dropped_pillars: usize,
     pub points_in_dropped_pillars: usize,
 }
+
+impl PillarStats {
+    /// Points with a known fate: kept, or dropped for one of the counted reasons. Equals
+    /// `points_in` when nothing was lost without being counted.
+    pub fn accounted(&self) -> usize {
+        self.points_kept
+            + self.outside_range
+            + self.non_finite
+            + self.dropped_by_pillar_limit
+            + self.points_in_dropped_pillars
+    }
+}
