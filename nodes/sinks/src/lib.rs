@@ -1,5 +1,6 @@
 //! Sinks: files for people and programs.
 
+pub mod npy;
 pub mod ply;
 pub mod ply_sink;
 pub mod png_sink;
