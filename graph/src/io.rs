@@ -69,12 +69,16 @@ async fn write_atomic_async(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     tokio::fs::rename(&temporary, path).await
 }
 
+/// A temporary name beside `path`, unique per write: two writes to one path in flight must
+/// not share a temporary file.
 fn temporary_path(path: &Path) -> PathBuf {
+    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let unique = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let mut name = path
         .file_name()
         .map(|n| n.to_os_string())
         .unwrap_or_default();
-    name.push(format!(".{}.tmp", std::process::id()));
+    name.push(format!(".{}.{unique}.tmp", std::process::id()));
     path.with_file_name(name)
 }
 

@@ -72,6 +72,7 @@ pub fn pillarize_dense(grid: &PillarGrid, limits: Limits, points: &[[f32; 4]]) -
         coords.push((cell % nx) as u32);
     }
     Pillars {
+        meta: Default::default(),
         grid: *grid,
         max_points_per_pillar: max_points,
         features,

@@ -1,10 +1,15 @@
 //! PointPillars pillarization: points in the ego frame to the non-empty pillars of a BEV grid.
 
+pub mod bev_stats;
 pub mod dense;
 pub mod node;
 pub mod sparse;
 
-pub use node::register;
+/// Registers this family's node kinds.
+pub fn register(registry: &mut bevworld_graph::Registry) {
+    node::register(registry);
+    bev_stats::register(registry);
+}
 pub use sparse::Pillarizer;
 
 /// Limits on what one sweep may produce. The defaults are mmdetection3d's for nuScenes

@@ -3,7 +3,7 @@
 use bevworld_graph::{
     Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
 };
-use bevworld_types::{PillarGrid, PillarStats, Pillars, SensorFrame};
+use bevworld_types::{FrameMeta, PillarGrid, PillarStats, Pillars, SensorFrame};
 use glam::{Affine3A, Vec3};
 use serde::{Deserialize, Serialize};
 
@@ -51,7 +51,14 @@ impl Task for PillarizeNode {
             let q = ego_from_lidar.transform_point3(Vec3::new(p.x, p.y, p.z));
             [q.x, q.y, q.z, p.intensity]
         }));
-        let pillars: Pillars = self.pillarizer.run(&self.points);
+        let mut pillars: Pillars = self.pillarizer.run(&self.points);
+        pillars.meta = FrameMeta {
+            sample_token: frame.sample_token.clone(),
+            frame_token: frame.frame_token.clone(),
+            scene_name: frame.scene_name.clone(),
+            time_of_validity_us: frame.time_of_validity_us,
+            global_from_ego: frame.global_from_ego,
+        };
         let s = pillars.stats;
         self.totals.points_in += s.points_in;
         self.totals.points_kept += s.points_kept;

@@ -203,6 +203,7 @@ impl Pillarizer {
             coords.push((cell % self.nx) as u32);
         }
         Pillars {
+            meta: Default::default(),
             grid: self.grid,
             max_points_per_pillar: max_points,
             features,

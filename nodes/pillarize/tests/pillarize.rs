@@ -270,3 +270,31 @@ fn node_parameters_are_validated() {
         "a partial grid names its missing fields"
     );
 }
+
+#[test]
+fn bev_statistics_by_hand() {
+    // Pillar (iy 2, ix 1) with z 0.2 and 0.4, intensities 5 and 7; one point in (iy 0, ix 3).
+    let points = [
+        [1.0, 2.2, 0.2, 5.0],
+        [1.4, 2.6, 0.4, 7.0],
+        [3.5, 0.5, -0.5, 1.0],
+    ];
+    let pillars = Pillarizer::new(small(), Limits::default()).run(&points);
+    let bev = bevworld_pillarize::bev_stats::bev_statistics(&pillars);
+    assert_eq!(
+        (bev.grid.height, bev.grid.width, bev.channels.len()),
+        (4, 4, 5)
+    );
+    let at = |c: usize, iy: usize, ix: usize| bev.data[c * 16 + iy * 4 + ix];
+    assert_eq!(at(0, 2, 1), 1.0);
+    assert!((at(1, 2, 1) - 3f32.ln()).abs() < 1e-6);
+    assert!(
+        (at(2, 2, 1) - 0.4).abs() < 1e-6
+            && (at(3, 2, 1) - 0.3).abs() < 1e-6
+            && (at(4, 2, 1) - 6.0).abs() < 1e-6
+    );
+    assert_eq!((at(0, 0, 3), at(2, 0, 3)), (1.0, -0.5));
+    // Empty cells are zero in every channel.
+    assert!((0..5).all(|c| at(c, 1, 1) == 0.0));
+    assert_eq!(bev.data.iter().filter(|v| **v != 0.0).count(), 5 + 5);
+}

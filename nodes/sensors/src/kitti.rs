@@ -242,6 +242,7 @@ impl Kitti {
         Ok(SensorFrame {
             time_of_validity_us: time,
             sample_token: format!("{}/{:06}", self.sequence, index),
+            frame_token: format!("{}/{:06}", self.sequence, index),
             scene_name: self.sequence.clone(),
             index_in_scene: index,
             global_from_ego,

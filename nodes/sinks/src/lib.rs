@@ -1,5 +1,6 @@
 //! Sinks: files for people and programs.
 
+pub mod export;
 pub mod npy;
 pub mod ply;
 pub mod ply_sink;
@@ -10,4 +11,5 @@ pub mod writes;
 pub fn register(registry: &mut bevworld_graph::Registry) {
     png_sink::register(registry);
     ply_sink::register(registry);
+    export::register(registry);
 }

@@ -12,7 +12,10 @@ pub struct SensorFrame {
     /// The frame's time of validity (the LiDAR's, for keyframes).
     pub time_of_validity_us: i64,
     /// The dataset's identifier of the sample (nuScenes sample token, KITTI frame index).
+    /// Sweeps between keyframes share their keyframe's sample token.
     pub sample_token: String,
+    /// Unique per frame: the LiDAR sample_data token (nuScenes), `sequence/index` (KITTI).
+    pub frame_token: String,
     pub scene_name: String,
     /// Position of the frame within its scene, from 0.
     pub index_in_scene: usize,

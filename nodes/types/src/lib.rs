@@ -5,6 +5,7 @@
 //! f64 (nuScenes coordinates reach kilometres, where f32 loses centimetres).
 
 pub mod action;
+pub mod bev;
 pub mod camera;
 pub mod frame;
 pub mod pillars;
@@ -12,6 +13,7 @@ pub mod point_cloud;
 pub mod pose;
 
 pub use action::EgoAction;
+pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
 pub use frame::SensorFrame;
 pub use pillars::{PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};

@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::bev::FrameMeta;
+
 /// A BEV grid over the ego frame. Intervals are half-open: a point is inside when
 /// `min <= coordinate < max` on every axis, and falls in cell `floor((x - x_min) / size)`, so a
 /// point exactly on a border between cells belongs to the higher cell, and a point on the
@@ -95,6 +97,8 @@ pub const PILLAR_FEATURES: usize = 9;
 /// The non-empty pillars of one sweep.
 #[derive(Clone, Debug, Default)]
 pub struct Pillars {
+    /// The frame the sweep belongs to (empty outside a graph).
+    pub meta: FrameMeta,
     pub grid: PillarGrid,
     pub max_points_per_pillar: usize,
     /// `[P, max_points_per_pillar, 9]`, zero-padded: points beyond a pillar's count are zeros.

@@ -34,6 +34,8 @@ pub struct NuScenesOptions {
 /// One resolved sensor reading.
 #[derive(Clone, Debug)]
 struct Reading {
+    /// The sample_data token.
+    token: String,
     file: String,
     timestamp_us: i64,
     global_from_ego: Pose,
@@ -213,6 +215,7 @@ impl NuScenes {
                 sensor.channel.clone(),
                 record,
                 Reading {
+                    token: record.token.clone(),
                     file: record.filename.clone(),
                     timestamp_us: record.timestamp,
                     global_from_ego,
@@ -408,6 +411,7 @@ impl NuScenes {
         Ok(SensorFrame {
             time_of_validity_us: frame.lidar.timestamp_us,
             sample_token: frame.sample_token.clone(),
+            frame_token: frame.lidar.token.clone(),
             scene_name: frame.scene_name.clone(),
             index_in_scene: frame.index_in_scene,
             global_from_ego: frame.lidar.global_from_ego,

@@ -1,0 +1,219 @@
+//! `export_features`: BEV features for 3D detection and motion heads, one file per frame plus a
+//! dataset-level `index.json`.
+//!
+//! - Files are `<out>/<frame token>.npy` (NumPy, `[C, H, W]` float32) or `.safetensors` (one
+//!   tensor named `features`, with the channel meanings in its metadata).
+//! - Writes are atomic. A rerun skips files that exist unless `overwrite` is set, so a killed
+//!   run restarted with the same command completes the set without duplicates; temporary files
+//!   a kill left behind are removed at start.
+//! - The index is merged with an existing one (entries keyed by frame token) and written
+//!   atomically at the end. Shards writing to one folder each name their own `index`.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use bevworld_graph::{
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+};
+use bevworld_types::BevFeatures;
+use serde::{Deserialize, Serialize};
+
+use crate::npy::npy_f32;
+use crate::writes::Writes;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ExportFormat {
+    #[default]
+    Npy,
+    Safetensors,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExportParams {
+    pub out: PathBuf,
+    #[serde(default)]
+    pub format: ExportFormat,
+    /// Rewrite files that already exist (otherwise they are kept and skipped).
+    #[serde(default)]
+    pub overwrite: bool,
+    /// Index file name inside `out`; give each shard its own when shards share a folder.
+    #[serde(default = "default_index")]
+    pub index: String,
+}
+
+fn default_index() -> String {
+    "index.json".into()
+}
+
+pub struct ExportSink {
+    params: ExportParams,
+    writes: Writes,
+    entries: BTreeMap<String, serde_json::Value>,
+    written: u64,
+    skipped_existing: u64,
+}
+
+/// A file name from a sample token: path separators and odd characters become '_'.
+fn file_stem(token: &str) -> String {
+    token
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '.' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+fn encode(features: &BevFeatures, format: ExportFormat) -> Result<Vec<u8>, String> {
+    let shape = [
+        features.channels.len(),
+        features.grid.height,
+        features.grid.width,
+    ];
+    match format {
+        ExportFormat::Npy => npy_f32(&shape, &features.data),
+        ExportFormat::Safetensors => {
+            let expected: usize = shape.iter().product();
+            if features.data.len() != expected {
+                return Err(format!(
+                    "array has {} values but shape {shape:?} needs {expected}",
+                    features.data.len()
+                ));
+            }
+            let bytes: Vec<u8> = features.data.iter().flat_map(|v| v.to_le_bytes()).collect();
+            let view = safetensors::tensor::TensorView::new(
+                safetensors::Dtype::F32,
+                shape.to_vec(),
+                &bytes,
+            )
+            .map_err(|e| e.to_string())?;
+            let metadata = std::collections::HashMap::from([
+                ("channels".to_string(), features.channels.join(",")),
+                (
+                    "sample_token".to_string(),
+                    features.meta.sample_token.clone(),
+                ),
+                ("model".to_string(), features.model.clone()),
+            ]);
+            safetensors::tensor::serialize([("features", view)], Some(metadata))
+                .map_err(|e| e.to_string())
+        }
+    }
+}
+
+impl Sink for ExportSink {
+    fn start(&mut self) -> Result<(), NodeError> {
+        let out = &self.params.out;
+        std::fs::create_dir_all(out).map_err(|e| {
+            NodeError::fatal(format!("{}: cannot create folder: {e}", out.display()))
+        })?;
+        // A killed run may have left temporary files: they are never valid outputs.
+        if let Ok(entries) = std::fs::read_dir(out) {
+            for entry in entries.flatten() {
+                if entry.file_name().to_string_lossy().ends_with(".tmp") {
+                    let _ = std::fs::remove_file(entry.path());
+                }
+            }
+        }
+        let index = out.join(&self.params.index);
+        if index.exists() {
+            let text = std::fs::read_to_string(&index)
+                .map_err(|e| NodeError::fatal(format!("{}: cannot read: {e}", index.display())))?;
+            let existing: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+                NodeError::fatal(format!("{}: not a valid index: {e}", index.display()))
+            })?;
+            for entry in existing["frames"].as_array().into_iter().flatten() {
+                if let Some(token) = entry["frame_token"].as_str() {
+                    self.entries.insert(token.to_string(), entry.clone());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
+        let features = inputs.get::<BevFeatures>("features")?;
+        // Files and index entries are keyed by the frame token: sweeps share a sample token.
+        let token = &features.meta.frame_token;
+        if token.is_empty() {
+            return Err(NodeError::item("features carry no frame token"));
+        }
+        let extension = match self.params.format {
+            ExportFormat::Npy => "npy",
+            ExportFormat::Safetensors => "safetensors",
+        };
+        let file = format!("{}.{extension}", file_stem(token));
+        let path = self.params.out.join(&file);
+        if path.exists() && !self.params.overwrite {
+            self.skipped_existing += 1;
+        } else {
+            let bytes = encode(features, self.params.format)
+                .map_err(|e| NodeError::item(format!("{token}: {e}")))?;
+            self.writes.write(path, bytes)?;
+            self.written += 1;
+        }
+        let pose = features.meta.global_from_ego;
+        let m = glam::DMat4::from(pose);
+        let rows: Vec<[f64; 4]> = (0..4)
+            .map(|r| [m.col(0)[r], m.col(1)[r], m.col(2)[r], m.col(3)[r]])
+            .collect();
+        self.entries.insert(
+            token.clone(),
+            serde_json::json!({
+                "frame_token": token,
+                "sample_token": features.meta.sample_token,
+                "scene": features.meta.scene_name,
+                "timestamp_us": features.meta.time_of_validity_us,
+                "global_from_ego": rows,
+                "file": file,
+                "shape": [features.channels.len(), features.grid.height, features.grid.width],
+                "dtype": "float32",
+                "grid": {"x_range": features.grid.x_range, "y_range": features.grid.y_range, "resolution_m": features.grid.resolution,
+                         "frame": "ego", "layout": "[C, H, W], row i = y, column j = x"},
+                "channels": features.channels,
+                "model": features.model,
+                "weights_hash": features.weights_hash,
+            }),
+        );
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), NodeError> {
+        self.writes.flush()?;
+        let frames: Vec<&serde_json::Value> = self.entries.values().collect();
+        let index = serde_json::json!({"format": match self.params.format { ExportFormat::Npy => "npy", ExportFormat::Safetensors => "safetensors" }, "frames": frames});
+        let path = self.params.out.join(&self.params.index);
+        let bytes =
+            serde_json::to_vec_pretty(&index).map_err(|e| NodeError::fatal(e.to_string()))?;
+        bevworld_graph::io::write_atomic_now(&path, &bytes)
+            .map_err(|e| NodeError::fatal(format!("{}: write failed: {e}", path.display())))
+    }
+
+    fn report(&self) -> Figures {
+        Figures::from([
+            ("files_written".to_string(), self.written as f64),
+            ("skipped_existing".to_string(), self.skipped_existing as f64),
+        ])
+    }
+}
+
+pub fn register(registry: &mut Registry) {
+    registry.register(
+        KindSpec::sink("export_features", "writes BEV features per frame (.npy or .safetensors) with a dataset index.json; resumable")
+            .input(PortSpec::new::<BevFeatures>("features")),
+        |params: ExportParams| {
+            if params.out.as_os_str().is_empty() {
+                return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));
+            }
+            if params.index.is_empty() || params.index.contains('/') || !params.index.ends_with(".json") {
+                return Err(ParamError::field("index", format!("'{}' is not a .json file name", params.index)).with_accepted("a file name ending in .json"));
+            }
+            Ok(Node::Sink(Box::new(ExportSink { params, writes: Writes::new(8), entries: BTreeMap::new(), written: 0, skipped_existing: 0 })))
+        },
+    );
+}
