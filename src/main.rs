@@ -38,6 +38,13 @@ enum Command {
         /// Hide the progress bar.
         #[arg(long)]
         no_progress: bool,
+        /// Process every N-th scene starting at I (sets `source.shard`), so one command can be
+        /// spread over machines by any batch scheduler.
+        #[arg(long, value_name = "I/N")]
+        shard: Option<String>,
+        /// Rewrite existing output files of every `export_features` node.
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Validate a graph and print it resolved (parameters with defaults, edges with policies).
     Check {
@@ -97,10 +104,27 @@ fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
         Command::Run {
             graph,
-            set,
+            mut set,
             metrics,
             no_progress,
-        } => run(&graph, &set, metrics.as_deref(), !no_progress),
+            shard,
+            overwrite,
+        } => {
+            if let Some(shard) = shard {
+                bevworld_sensors::source::parse_shard(&shard)
+                    .map_err(anyhow::Error::msg)
+                    .context("--shard")?;
+                set.push(format!("source.shard={shard}"));
+            }
+            if overwrite {
+                set.extend(
+                    export_nodes(&graph)?
+                        .into_iter()
+                        .map(|id| format!("{id}.overwrite=true")),
+                );
+            }
+            run(&graph, &set, metrics.as_deref(), !no_progress)
+        }
         Command::Check { graph, set } => {
             let Some(resolved) = load(&graph, &set)? else {
                 return Ok(ExitCode::from(2));
@@ -148,6 +172,19 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// The ids of a graph's `export_features` nodes, for `--overwrite`.
+fn export_nodes(path: &Path) -> Result<Vec<String>> {
+    let Some(graph) = load(path, &[])? else {
+        bail!("{} has validation problems (see above)", path.display())
+    };
+    Ok(graph
+        .nodes
+        .iter()
+        .filter(|n| n.kind.name == "export_features")
+        .map(|n| n.id.clone())
+        .collect())
 }
 
 /// Validates a graph; prints every problem and returns None when there are any.

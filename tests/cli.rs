@@ -225,6 +225,83 @@ fn a_corrupt_frame_is_skipped_under_skip_and_stops_under_stop() {
 }
 
 #[test]
+fn shard_and_overwrite_flags_reach_the_nodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let made = bevworld(&[
+        "synth",
+        "--out",
+        data.to_str().unwrap(),
+        "--scenes",
+        "2",
+        "--seconds",
+        "1",
+        "--camera-size",
+        "32x18",
+        "--azimuth-step",
+        "3",
+        "--agents",
+        "1",
+    ]);
+    assert!(made.status.success(), "{}", text(&made));
+    let out = dir.path().join("features");
+    let run = |extra: &[&str]| {
+        let metrics = dir.path().join("m.json");
+        let mut args = vec![
+            "run".to_string(),
+            "configs/graphs/export_features.yaml".into(),
+            "--set".into(),
+            format!("source.data={}", data.display()),
+            "--set".into(),
+            format!("export.out={}", out.display()),
+            "--metrics".into(),
+            metrics.display().to_string(),
+            "--no-progress".into(),
+        ];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let output = Command::new(env!("CARGO_BIN_EXE_bevworld"))
+            .args(&args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        assert!(output.status.success(), "{}", text(&output));
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
+        let export = report["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|n| n["id"] == "export")
+            .unwrap()
+            .clone();
+        (
+            export["items_in"].as_u64().unwrap(),
+            export["extra"]["files_written"].as_f64().unwrap(),
+        )
+    };
+    // Two scenes of 2 keyframes each: shard 1/2 takes the second scene only.
+    assert_eq!(run(&["--shard", "1/2"]), (2, 2.0));
+    assert_eq!(
+        run(&[]),
+        (4, 2.0),
+        "the first scene's files are new, the second's are skipped"
+    );
+    assert_eq!(run(&["--overwrite"]), (4, 4.0));
+    let bad = bevworld(&[
+        "run",
+        "configs/graphs/export_features.yaml",
+        "--shard",
+        "2/2",
+    ]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(
+        text(&bad).contains("--shard") && text(&bad).contains("0 <= I < N"),
+        "{}",
+        text(&bad)
+    );
+}
+
+#[test]
 fn bad_set_syntax_is_an_error() {
     let output = bevworld(&["check", "configs/graphs/replay.yaml", "--set", "nodot"]);
     assert_eq!(output.status.code(), Some(1));
