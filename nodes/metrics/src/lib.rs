@@ -1,7 +1,9 @@
 //! Evaluation metrics. Every claim about accuracy in this project rests on these.
 
 pub mod chamfer;
+pub mod frechet;
 pub mod image;
 
 pub use chamfer::{ChamferResult, Roi, chamfer, chamfer_in_roi};
+pub use frechet::{FeatureExtractor, GaussianStats, frechet_distance};
 pub use image::{Planes, psnr, rgb_planes, ssim};
