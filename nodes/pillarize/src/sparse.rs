@@ -1,5 +1,8 @@
-//! The sparse pillarizer. Work and memory follow the occupied pillars, not the grid: a
-//! cell-to-pillar map is allocated once per node and only the cells a sweep touched are reset.
+//! The sparse pillarizer. Work and memory follow the points, not the grid: each point inside
+//! the grid becomes a `cell << 32 | index` key, and a stable radix sort with 8-bit digits groups
+//! the keys by cell. Its histograms fit in L1, where a per-cell map of the 384 x 384 grid would
+//! not fit in L2. Each pillar is then one contiguous run of keys, and features and padding are
+//! written once, in order.
 //!
 //! Deterministic rules when a limit is hit:
 //! - a pillar keeps its first `max_points_per_pillar` points in input order;
@@ -11,14 +14,14 @@ use bevworld_types::{PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 
 use crate::Limits;
 
-const EMPTY: u32 = u32::MAX;
-
 pub struct Pillarizer {
     grid: PillarGrid,
     limits: Limits,
     nx: usize,
     ny: usize,
-    cell_to_pillar: Vec<u32>,
+    /// Sort buffers, kept between sweeps.
+    keys: Vec<u64>,
+    scratch: Vec<u64>,
 }
 
 /// The 9 PointPillars features of a point: x, y, z, intensity, its offsets from the pillar's
@@ -76,7 +79,8 @@ impl Pillarizer {
             limits,
             nx,
             ny,
-            cell_to_pillar: vec![EMPTY; nx * ny],
+            keys: Vec::new(),
+            scratch: Vec::new(),
         }
     }
 
@@ -93,114 +97,108 @@ impl Pillarizer {
             ..Default::default()
         };
 
-        // Pass 1: pillars in order of first appearance; count and sum the kept points.
-        let mut pillar_cells: Vec<u32> = Vec::new();
-        let mut counts: Vec<u32> = Vec::new();
-        let mut sums: Vec<[f32; 3]> = Vec::new();
-        let mut point_pillar: Vec<u32> = Vec::with_capacity(points.len());
-        for p in points {
+        // Keys `cell << 32 | point index` for the points inside the grid.
+        self.keys.clear();
+        for (index, p) in points.iter().enumerate() {
             if !(p[0].is_finite() && p[1].is_finite() && p[2].is_finite() && p[3].is_finite()) {
                 stats.non_finite += 1;
-                point_pillar.push(EMPTY);
                 continue;
             }
-            let Some(cell) = cell_of(&self.grid, self.nx, self.ny, inv, p) else {
-                stats.outside_range += 1;
-                point_pillar.push(EMPTY);
-                continue;
-            };
-            let mut pillar = self.cell_to_pillar[cell];
-            if pillar == EMPTY {
-                pillar = counts.len() as u32;
-                self.cell_to_pillar[cell] = pillar;
-                pillar_cells.push(cell as u32);
-                counts.push(0);
-                sums.push([0.0; 3]);
-            }
-            let index = pillar as usize;
-            if (counts[index] as usize) < max_points {
-                counts[index] += 1;
-                for axis in 0..3 {
-                    sums[index][axis] += p[axis];
-                }
-                point_pillar.push(pillar);
-            } else {
-                stats.dropped_by_pillar_limit += 1;
-                point_pillar.push(EMPTY);
+            match cell_of(&self.grid, self.nx, self.ny, inv, p) {
+                Some(cell) => self.keys.push(((cell as u64) << 32) | index as u64),
+                None => stats.outside_range += 1,
             }
         }
-        // Reset only what this sweep touched.
-        for &cell in &pillar_cells {
-            self.cell_to_pillar[cell as usize] = EMPTY;
+        // Stable LSD radix sort on the cell, 8 bits a pass: the histograms stay in L1 and the
+        // work follows the points, not the grid. Pillars come out contiguous, in row-major
+        // order, each with its points in input order.
+        let cell_bits = usize::BITS - (self.nx * self.ny).leading_zeros();
+        let mut shift = 32;
+        while shift < 32 + cell_bits {
+            let mut histogram = [0usize; 257];
+            for key in &self.keys {
+                histogram[((key >> shift) & 0xFF) as usize + 1] += 1;
+            }
+            for digit in 0..256 {
+                histogram[digit + 1] += histogram[digit];
+            }
+            self.scratch.resize(self.keys.len(), 0);
+            for &key in &self.keys {
+                let digit = ((key >> shift) & 0xFF) as usize;
+                self.scratch[histogram[digit]] = key;
+                histogram[digit] += 1;
+            }
+            std::mem::swap(&mut self.keys, &mut self.scratch);
+            shift += 8;
         }
 
-        // Choose the pillars to keep and their output order (row-major cells).
-        let mut kept: Vec<u32> = (0..counts.len() as u32).collect();
-        if kept.len() > self.limits.max_pillars {
-            let distance = |pillar: u32| {
-                let cell = pillar_cells[pillar as usize] as usize;
-                let (cx, cy) = self.grid.cell_center(cell % self.nx, cell / self.nx);
-                (cx * cx + cy * cy, cell)
+        // Groups of equal cells: (cell, first key, points kept).
+        let mut groups: Vec<(u32, u32, u32)> = Vec::new();
+        let mut start = 0usize;
+        while start < self.keys.len() {
+            let cell = (self.keys[start] >> 32) as u32;
+            let mut end = start + 1;
+            while end < self.keys.len() && (self.keys[end] >> 32) as u32 == cell {
+                end += 1;
+            }
+            let kept = (end - start).min(max_points);
+            stats.dropped_by_pillar_limit += end - start - kept;
+            groups.push((cell, start as u32, kept as u32));
+            start = end;
+        }
+
+        // Beyond max_pillars, keep those nearest the ego origin (ties by cell index).
+        if groups.len() > self.limits.max_pillars {
+            let nx = self.nx;
+            let grid = self.grid;
+            let distance = |cell: u32| {
+                let (cx, cy) = grid.cell_center(cell as usize % nx, cell as usize / nx);
+                cx * cx + cy * cy
             };
-            kept.select_nth_unstable_by(self.limits.max_pillars, |a, b| {
-                let (da, ca) = distance(*a);
-                let (db, cb) = distance(*b);
-                da.total_cmp(&db).then(ca.cmp(&cb))
+            groups.select_nth_unstable_by(self.limits.max_pillars, |a, b| {
+                distance(a.0).total_cmp(&distance(b.0)).then(a.0.cmp(&b.0))
             });
-            for &dropped in &kept[self.limits.max_pillars..] {
+            for dropped in &groups[self.limits.max_pillars..] {
                 stats.dropped_pillars += 1;
-                stats.points_in_dropped_pillars += counts[dropped as usize] as usize;
+                stats.points_in_dropped_pillars += dropped.2 as usize;
             }
-            kept.truncate(self.limits.max_pillars);
-        }
-        kept.sort_unstable_by_key(|&pillar| pillar_cells[pillar as usize]);
-        let mut slot_of = vec![EMPTY; counts.len()];
-        for (slot, &pillar) in kept.iter().enumerate() {
-            slot_of[pillar as usize] = slot as u32;
+            groups.truncate(self.limits.max_pillars);
+            groups.sort_unstable_by_key(|g| g.0);
         }
 
-        // Pass 2: group each kept pillar's points (a counting sort, input order kept), then
-        // write features and padding in one sequential sweep: every float is written once.
-        let pillar_count = kept.len();
-        let mut starts = vec![0u32; pillar_count + 1];
-        for (slot, &pillar) in kept.iter().enumerate() {
-            starts[slot + 1] = starts[slot] + counts[pillar as usize];
-        }
-        let mut cursor = starts.clone();
-        let mut order = vec![0u32; starts[pillar_count] as usize];
-        for (index, &pillar) in point_pillar.iter().enumerate() {
-            if pillar == EMPTY {
-                continue;
-            }
-            let slot = slot_of[pillar as usize];
-            if slot != EMPTY {
-                order[cursor[slot as usize] as usize] = index as u32;
-                cursor[slot as usize] += 1;
-            }
-        }
+        // Features and padding, written once, in order.
+        let pillar_count = groups.len();
         let mut features = Vec::with_capacity(pillar_count * max_points * PILLAR_FEATURES);
         let mut point_counts = Vec::with_capacity(pillar_count);
-        for (slot, &pillar) in kept.iter().enumerate() {
-            let (sum, n) = (sums[pillar as usize], counts[pillar as usize]);
-            let mean = [sum[0] / n as f32, sum[1] / n as f32, sum[2] / n as f32];
-            let cell = pillar_cells[pillar as usize] as usize;
-            let (cx, cy) = self.grid.cell_center(cell % self.nx, cell / self.nx);
-            for &index in &order[starts[slot] as usize..starts[slot + 1] as usize] {
-                let p = points[index as usize];
-                features.extend_from_slice(&point_features(&p, &mean, (cx, cy)));
+        let mut coords = Vec::with_capacity(pillar_count * 2);
+        for &(cell, first, kept) in &groups {
+            let members = &self.keys[first as usize..(first + kept) as usize];
+            let mut sum = [0.0f32; 3];
+            for key in members {
+                let p = &points[(key & 0xFFFF_FFFF) as usize];
+                sum[0] += p[0];
+                sum[1] += p[1];
+                sum[2] += p[2];
+            }
+            let n = kept as f32;
+            let mean = [sum[0] / n, sum[1] / n, sum[2] / n];
+            let (ix, iy) = (cell as usize % self.nx, cell as usize / self.nx);
+            let center = self.grid.cell_center(ix, iy);
+            for key in members {
+                features.extend_from_slice(&point_features(
+                    &points[(key & 0xFFFF_FFFF) as usize],
+                    &mean,
+                    center,
+                ));
             }
             features.resize(
-                features.len() + (max_points - n as usize) * PILLAR_FEATURES,
+                features.len() + (max_points - kept as usize) * PILLAR_FEATURES,
                 0.0,
             );
-            point_counts.push(n);
-        }
-        stats.points_kept = order.len();
-        let mut coords = Vec::with_capacity(pillar_count * 2);
-        for &pillar in &kept {
-            let cell = pillar_cells[pillar as usize] as usize;
-            coords.push((cell / self.nx) as u32);
-            coords.push((cell % self.nx) as u32);
+            point_counts.push(kept);
+            coords.push(iy as u32);
+            coords.push(ix as u32);
+            stats.points_kept += kept as usize;
         }
         Pillars {
             meta: Default::default(),
