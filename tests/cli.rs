@@ -19,6 +19,25 @@ fn text(output: &Output) -> String {
     )
 }
 
+/// A small synthetic dataset for tests: 32x18 cameras, a 3-degree LiDAR and one agent;
+/// `extra` adds the scene count and length.
+fn synth_small(out: &Path, extra: &[&str]) {
+    let mut args = vec![
+        "synth",
+        "--out",
+        out.to_str().unwrap(),
+        "--camera-size",
+        "32x18",
+        "--azimuth-step",
+        "3",
+        "--agents",
+        "1",
+    ];
+    args.extend_from_slice(extra);
+    let output = bevworld(&args);
+    assert!(output.status.success(), "{}", text(&output));
+}
+
 fn nuscenes() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/nuscenes-sample")
 }
@@ -158,18 +177,7 @@ fn a_corrupt_frame_is_skipped_under_skip_and_stops_under_stop() {
     // Two synthetic frames; the second one's front camera image is corrupted.
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let output = bevworld(&[
-        "synth",
-        "--out",
-        data.to_str().unwrap(),
-        "--seconds",
-        "1",
-        "--camera-size",
-        "64x36",
-        "--azimuth-step",
-        "3",
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
+    synth_small(&data, &["--seconds", "1"]);
     let keyframe = std::fs::read_dir(data.join("samples/CAM_FRONT"))
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -228,22 +236,7 @@ fn a_corrupt_frame_is_skipped_under_skip_and_stops_under_stop() {
 fn shard_and_overwrite_flags_reach_the_nodes() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let made = bevworld(&[
-        "synth",
-        "--out",
-        data.to_str().unwrap(),
-        "--scenes",
-        "2",
-        "--seconds",
-        "1",
-        "--camera-size",
-        "32x18",
-        "--azimuth-step",
-        "3",
-        "--agents",
-        "1",
-    ]);
-    assert!(made.status.success(), "{}", text(&made));
+    synth_small(&data, &["--scenes", "2", "--seconds", "1"]);
     let out = dir.path().join("features");
     let run = |extra: &[&str]| {
         let metrics = dir.path().join("m.json");
@@ -411,20 +404,7 @@ fn a_killed_export_resumes_to_a_complete_set_without_duplicates() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     // 4 s of synthetic driving: 48 sweeps at 12 Hz.
-    let made = bevworld(&[
-        "synth",
-        "--out",
-        data.to_str().unwrap(),
-        "--seconds",
-        "4",
-        "--camera-size",
-        "32x18",
-        "--azimuth-step",
-        "2",
-        "--agents",
-        "2",
-    ]);
-    assert!(made.status.success(), "{}", text(&made));
+    synth_small(&data, &["--seconds", "4"]);
     let out = dir.path().join("features");
     let args = |extra: &[&str]| -> Vec<String> {
         let mut args: Vec<String> = [
