@@ -165,3 +165,41 @@ fn bad_input_is_a_clear_error() {
         String::from_utf8_lossy(&output.stderr).contains("has a frame 1 frames after its first")
     );
 }
+
+#[test]
+fn fid_without_inception_weights_says_so_and_fails() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for name in ["a.png", "b.png"] {
+        image::RgbImage::from_pixel(8, 8, image::Rgb([10, 20, 30]))
+            .save(dir.path().join(name))
+            .expect("png");
+    }
+    let folder = dir.path().to_str().expect("utf-8");
+    let out = bevworld(&["eval", "fid", "--pred", folder, "--gt", folder]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("FID needs InceptionV3 weights"), "{stderr}");
+    assert!(stderr.contains("FID was not computed"), "{stderr}");
+    assert!(
+        out.stdout.is_empty(),
+        "no number may be printed without weights"
+    );
+
+    let missing = dir.path().join("pt_inception.pth");
+    let out = bevworld(&[
+        "eval",
+        "fid",
+        "--pred",
+        folder,
+        "--gt",
+        folder,
+        "--inception",
+        missing.to_str().expect("utf-8"),
+    ]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("pt_inception.pth: file not found"),
+        "{stderr}"
+    );
+}

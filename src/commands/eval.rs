@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
-use bevworld_metrics::{Roi, chamfer_in_roi};
+use bevworld_metrics::{InceptionExtractor, Roi, chamfer_in_roi};
 use bevworld_sensors::lidar_file::{LidarLayout, NonFinitePolicy, decode_points};
 use bevworld_sensors::{Dataset, DatasetFormat, DatasetOptions};
 use bevworld_types::{PointCloud, Pose};
@@ -18,6 +18,25 @@ pub enum EvalCommand {
     Chamfer(ChamferArgs),
     /// Chamfer distance of the copy_last and ego_warp forecasts at several horizons.
     Baselines(BaselinesArgs),
+    /// FID between two folders of images, with user-supplied InceptionV3 weights.
+    Fid(FidArgs),
+}
+
+#[derive(Args)]
+pub struct FidArgs {
+    /// Folder of generated images (.png, .jpg).
+    #[arg(long)]
+    pub pred: PathBuf,
+    /// Folder of reference images.
+    #[arg(long)]
+    pub gt: PathBuf,
+    /// pytorch-fid's pt_inception-2015-12-05-6726825d.pth, or a .safetensors copy. Without it
+    /// there is no FID: the command says so and fails.
+    #[arg(long)]
+    pub inception: Option<PathBuf>,
+    /// Print one JSON object: {"fid", "pred_images", "gt_images"}.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -94,7 +113,63 @@ pub fn run(command: &EvalCommand) -> Result<ExitCode> {
     match command {
         EvalCommand::Chamfer(args) => chamfer_command(args),
         EvalCommand::Baselines(args) => baselines_command(args),
+        EvalCommand::Fid(args) => fid_command(args),
     }
+}
+
+/// The images of a folder, sorted by name.
+fn read_images(dir: &Path) -> Result<Vec<image::RgbImage>> {
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading image folder {}", dir.display()))?
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|path| {
+            matches!(
+                path.extension()
+                    .and_then(|e| e.to_str())
+                    .map(str::to_ascii_lowercase)
+                    .as_deref(),
+                Some("png" | "jpg" | "jpeg")
+            )
+        })
+        .collect();
+    paths.sort();
+    if paths.len() < 2 {
+        bail!(
+            "{}: FID needs at least 2 images (.png, .jpg), found {}",
+            dir.display(),
+            paths.len()
+        );
+    }
+    paths
+        .iter()
+        .map(|path| {
+            Ok(image::open(path)
+                .with_context(|| format!("decoding image {}", path.display()))?
+                .to_rgb8())
+        })
+        .collect()
+}
+
+fn fid_command(args: &FidArgs) -> Result<ExitCode> {
+    let (_, device) = bevworld_device::from_env()?;
+    // The weights are checked first: without them nothing else is worth reading.
+    let extractor = InceptionExtractor::from_weights(args.inception.as_deref(), device)?;
+    let pred = read_images(&args.pred)?;
+    let gt = read_images(&args.gt)?;
+    let fid = extractor.fid(&pred, &gt)?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({"fid": fid, "pred_images": pred.len(), "gt_images": gt.len()})
+        );
+    } else {
+        println!(
+            "FID {fid:.4} ({} generated vs {} reference images, InceptionV3 pool3)",
+            pred.len(),
+            gt.len()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Reads a cloud's x, y, z by format (from the extension unless given).

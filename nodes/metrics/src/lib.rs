@@ -1,9 +1,12 @@
 //! Evaluation metrics. Every claim about accuracy in this project rests on these.
 
 pub mod chamfer;
+pub mod fid;
 pub mod frechet;
 pub mod image;
+pub mod inception;
 
 pub use chamfer::{ChamferResult, Roi, chamfer, chamfer_in_roi};
+pub use fid::{FidError, InceptionExtractor, load_inception};
 pub use frechet::{FeatureExtractor, GaussianStats, frechet_distance};
 pub use image::{Planes, psnr, rgb_planes, ssim};

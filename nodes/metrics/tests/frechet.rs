@@ -95,3 +95,58 @@ fn fitting_matches_numpy_cov_and_rejects_bad_input() {
             .contains("dimensions differ")
     );
 }
+
+/// Deterministic pseudo-random rows.
+fn rows(count: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
+    let mut state = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    (0..count)
+        .map(|_| {
+            (0..dim)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn low_rank_route_agrees_with_the_full_decomposition() {
+    use bevworld_metrics::frechet::frechet_distance_of_features;
+    // Fewer samples than dimensions (the low-rank route), both ways round.
+    for (n1, n2) in [(4, 6), (7, 3), (5, 5)] {
+        let a = rows(n1, 9, 1 + n1 as u64);
+        let b: Vec<Vec<f64>> = rows(n2, 9, 100 + n2 as u64)
+            .into_iter()
+            .map(|r| r.into_iter().map(|v| 0.5 * v + 0.3).collect())
+            .collect();
+        let full = frechet_distance(
+            &GaussianStats::fit(&a).unwrap(),
+            &GaussianStats::fit(&b).unwrap(),
+        )
+        .unwrap();
+        let low_rank = frechet_distance_of_features(&a, &b).unwrap();
+        // The full route takes square roots of the rank-deficient product's round-off
+        // eigenvalues (~1e-16, whose roots are ~1e-8); the low-rank route never sees them.
+        assert!(
+            (full - low_rank).abs() <= 1e-7 * (1.0 + full),
+            "{n1} x {n2}: full {full} vs low rank {low_rank}"
+        );
+        assert!(frechet_distance_of_features(&a, &a).unwrap().abs() < 1e-9);
+    }
+    // More samples than dimensions takes the full route and still agrees with itself.
+    let (a, b) = (rows(20, 3, 5), rows(15, 3, 6));
+    let full = frechet_distance(
+        &GaussianStats::fit(&a).unwrap(),
+        &GaussianStats::fit(&b).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(frechet_distance_of_features(&a, &b).unwrap(), full);
+    assert!(frechet_distance_of_features(&a, &rows(4, 2, 1)).is_err());
+    assert!(frechet_distance_of_features(&a[..1], &b).is_err());
+}
