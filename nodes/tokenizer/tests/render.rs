@@ -1,0 +1,256 @@
+//! Trilinear sampling and volume rendering weights against hand-computed values, their hard
+//! cases (outside the grid, opaque and empty space, 1000 samples), and finite differences.
+
+use bevworld_tokenizer::render::{
+    expected_depth, log_transmittance_after, render_weights, sample_trilinear,
+};
+use burn::prelude::*;
+
+fn device() -> Device {
+    Device::flex()
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().expect("f32")
+}
+
+const C: usize = 2;
+const Z: usize = 3;
+const Y: usize = 4;
+const X: usize = 5;
+
+/// Voxel (c, z, y, x) of the test grid: distinct, non-linear values.
+fn voxel(c: usize, z: usize, y: usize, x: usize) -> f32 {
+    ((c * 7 + z * 31 + y * 17 + x * 5) % 23) as f32 * 0.25 - 2.0 + (x * y) as f32 * 0.1
+}
+
+fn grid(device: &Device) -> Tensor<5> {
+    let mut data = Vec::new();
+    for c in 0..C {
+        for z in 0..Z {
+            for y in 0..Y {
+                for x in 0..X {
+                    data.push(voxel(c, z, y, x));
+                }
+            }
+        }
+    }
+    Tensor::from_data(TensorData::new(data, [1, C, Z, Y, X]), device)
+}
+
+/// Trilinear interpolation with zero padding, written out directly.
+fn reference(c: usize, p: [f32; 3]) -> f32 {
+    let (x0, y0, z0) = (p[0].floor(), p[1].floor(), p[2].floor());
+    let (fx, fy, fz) = (p[0] - x0, p[1] - y0, p[2] - z0);
+    let mut sum = 0.0;
+    for dz in 0..2 {
+        for dy in 0..2 {
+            for dx in 0..2 {
+                let (x, y, z) = (x0 as i64 + dx, y0 as i64 + dy, z0 as i64 + dz);
+                if x < 0 || y < 0 || z < 0 || x >= X as i64 || y >= Y as i64 || z >= Z as i64 {
+                    continue;
+                }
+                let w = (if dx == 1 { fx } else { 1.0 - fx })
+                    * (if dy == 1 { fy } else { 1.0 - fy })
+                    * (if dz == 1 { fz } else { 1.0 - fz });
+                sum += w * voxel(c, z as usize, y as usize, x as usize);
+            }
+        }
+    }
+    sum
+}
+
+fn sample(points: &[[f32; 3]]) -> Vec<f32> {
+    let flat: Vec<f32> = points.iter().flatten().copied().collect();
+    let p = Tensor::<3>::from_data(TensorData::new(flat, [1, points.len(), 3]), &device());
+    values(sample_trilinear(grid(&device()), p))
+}
+
+#[test]
+fn trilinear_is_exact_at_voxel_centres() {
+    let mut points = Vec::new();
+    for z in 0..Z {
+        for y in 0..Y {
+            for x in 0..X {
+                points.push([x as f32, y as f32, z as f32]);
+            }
+        }
+    }
+    let out = sample(&points);
+    for (i, p) in points.iter().enumerate() {
+        for c in 0..C {
+            let expected = voxel(c, p[2] as usize, p[1] as usize, p[0] as usize);
+            assert_eq!(out[i * C + c], expected, "{p:?} channel {c}");
+        }
+    }
+}
+
+#[test]
+fn trilinear_is_linear_between_centres() {
+    // Along x alone: a quarter of the way from (1, 2, 1) to (2, 2, 1).
+    let out = sample(&[[1.25, 2.0, 1.0]]);
+    let expected = 0.75 * voxel(0, 1, 2, 1) + 0.25 * voxel(0, 1, 2, 2);
+    assert!((out[0] - expected).abs() < 1e-6);
+    // Everywhere inside: the direct formula.
+    let points = [
+        [0.3, 0.7, 0.1],
+        [3.9, 2.5, 1.5],
+        [2.2, 0.0, 1.99],
+        [1.5, 1.5, 0.5],
+    ];
+    let out = sample(&points);
+    for (i, &p) in points.iter().enumerate() {
+        for c in 0..C {
+            assert!((out[i * C + c] - reference(c, p)).abs() < 1e-5, "{p:?}");
+        }
+    }
+}
+
+#[test]
+fn trilinear_is_zero_outside_and_fades_at_the_border() {
+    let points = [
+        [-1.0, 1.0, 1.0],
+        [X as f32, 1.0, 1.0],
+        [2.0, -3.0, 1.0],
+        [2.0, 1.0, Z as f32 + 0.5],
+        [-50.0, 80.0, 1e6],
+    ];
+    assert!(sample(&points).iter().all(|&v| v == 0.0));
+    // Half a voxel outside: half of the border voxel.
+    let out = sample(&[[-0.5, 1.0, 1.0]]);
+    assert!((out[0] - 0.5 * voxel(0, 1, 1, 0)).abs() < 1e-6);
+}
+
+#[test]
+fn trilinear_gradients_match_finite_differences() {
+    let device = Device::flex().autodiff();
+    let points = [[1.3, 2.6, 0.4], [3.7, 0.2, 1.8], [-0.4, 1.1, 1.2]];
+    // A fixed weighting of the outputs, so that the loss depends on every channel.
+    let loss_of = |points: &[[f32; 3]], voxels: Tensor<5>, p: Tensor<3>| {
+        let _ = points;
+        let weights = Tensor::<3>::from_data(
+            TensorData::new(vec![1.0f32, -0.5, 0.3, 2.0, -1.2, 0.7], [1, 3, 2]),
+            &p.device(),
+        );
+        (sample_trilinear(voxels, p) * weights).sum()
+    };
+    let flat: Vec<f32> = points.iter().flatten().copied().collect();
+    let p =
+        Tensor::<3>::from_data(TensorData::new(flat.clone(), [1, 3, 3]), &device).require_grad();
+    let voxels = grid(&device).require_grad();
+    let loss = loss_of(&points, voxels.clone(), p.clone());
+    let grads = loss.backward();
+    let grad_p = values(p.grad(&grads).expect("point gradient"));
+    let grad_v = values(voxels.grad(&grads).expect("voxel gradient"));
+
+    let plain = Device::flex();
+    let eval = |flat: &[f32], voxel_bump: Option<(usize, f32)>| -> f64 {
+        let p = Tensor::<3>::from_data(TensorData::new(flat.to_vec(), [1, 3, 3]), &plain);
+        let mut v = values(grid(&plain));
+        if let Some((i, h)) = voxel_bump {
+            v[i] += h;
+        }
+        let voxels = Tensor::<5>::from_data(TensorData::new(v, [1, C, Z, Y, X]), &plain);
+        values(loss_of(&points, voxels, p))[0] as f64
+    };
+    let h = 1e-2f32;
+    for k in 0..flat.len() {
+        let (mut up, mut down) = (flat.clone(), flat.clone());
+        up[k] += h;
+        down[k] -= h;
+        let numeric = (eval(&up, None) - eval(&down, None)) / (2.0 * h as f64);
+        assert!(
+            (numeric - grad_p[k] as f64).abs() < 2e-3 * (1.0 + numeric.abs()),
+            "point coordinate {k}: analytic {} numeric {numeric}",
+            grad_p[k]
+        );
+    }
+    // The loss is linear in the voxels, so any step gives the exact derivative.
+    for i in [0, 7, 23, 31, 44, 59, 60, 119] {
+        let numeric = (eval(&flat, Some((i, 1.0))) - eval(&flat, None)) as f32;
+        assert!(
+            (numeric - grad_v[i]).abs() < 1e-3,
+            "voxel {i}: {} vs {numeric}",
+            grad_v[i]
+        );
+    }
+}
+
+fn weights_of(logits: Vec<f32>, rays: usize) -> Vec<f32> {
+    let samples = logits.len() / rays;
+    values(render_weights(Tensor::from_data(
+        TensorData::new(logits, [rays, samples]),
+        &device(),
+    )))
+}
+
+#[test]
+fn weights_match_hand_computation() {
+    // α = 0.5, 0.5, 0.5: w = 0.5, 0.25, 0.125.
+    let w = weights_of(vec![0.0; 3], 1);
+    for (got, want) in w.iter().zip([0.5, 0.25, 0.125]) {
+        assert!((got - want).abs() < 1e-6, "{w:?}");
+    }
+}
+
+#[test]
+fn a_single_opaque_voxel_gives_its_depth() {
+    let samples = 64;
+    let depths: Vec<f32> = (0..samples).map(|i| 1.0 + 0.5 * i as f32).collect();
+    let mut logits = vec![-30.0f32; samples];
+    logits[37] = 30.0;
+    let weights = Tensor::<2>::from_data(
+        TensorData::new(weights_of(logits, 1), [1, samples]),
+        &device(),
+    );
+    let t = Tensor::<2>::from_data(TensorData::new(depths.clone(), [1, samples]), &device());
+    let depth = values(expected_depth(weights, t))[0];
+    assert!(
+        (depth - depths[37]).abs() < 1e-3,
+        "{depth} vs {}",
+        depths[37]
+    );
+}
+
+#[test]
+fn empty_space_renders_nothing() {
+    let w = weights_of(vec![-40.0; 150], 1);
+    assert!(w.iter().sum::<f32>() < 1e-6);
+}
+
+#[test]
+fn a_thousand_opaque_samples_neither_underflow_to_nan_nor_exceed_one() {
+    let w = weights_of(vec![60.0; 1000], 1);
+    assert!(w.iter().all(|v| v.is_finite() && *v >= 0.0));
+    assert!((w[0] - 1.0).abs() < 1e-6);
+    assert!(w[1..].iter().all(|&v| v < 1e-20));
+    let log_t = values(log_transmittance_after(Tensor::from_data(
+        TensorData::new(vec![60.0f32; 1000], [1, 1000]),
+        &device(),
+    )));
+    assert!(log_t.iter().all(|v| v.is_finite()));
+    assert!(log_t[999] < -1000.0);
+}
+
+#[test]
+fn weights_sum_to_the_ray_opacity_and_never_above_one() {
+    let (rays, samples) = (16, 200);
+    let mut state = 7u32;
+    let logits: Vec<f32> = (0..rays * samples)
+        .map(|_| {
+            state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+            (state >> 8) as f32 / (1 << 24) as f32 * 40.0 - 20.0
+        })
+        .collect();
+    let w = weights_of(logits.clone(), rays);
+    let log_t = values(log_transmittance_after(Tensor::from_data(
+        TensorData::new(logits, [rays, samples]),
+        &device(),
+    )));
+    for r in 0..rays {
+        let sum: f32 = w[r * samples..(r + 1) * samples].iter().sum();
+        let opacity = 1.0 - log_t[r * samples + samples - 1].exp();
+        assert!(sum <= 1.0 + 1e-5, "ray {r}: {sum}");
+        assert!((sum - opacity).abs() < 1e-4, "ray {r}: {sum} vs {opacity}");
+    }
+}
