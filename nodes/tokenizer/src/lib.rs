@@ -1,6 +1,8 @@
 //! The multi-modal BEV tokenizer of BEVWorld, as Burn modules: Swin backbones for the cameras
-//! and the LiDAR BEV, and the NeRF-style renderer that turns voxel features back into images
-//! and depths.
+//! and the LiDAR BEV, the pillar feature net, the decoder that lifts the latent to voxels, and
+//! the NeRF-style renderer that turns voxel features back into images and depths.
 
+pub mod decoder;
+pub mod encoder;
 pub mod render;
 pub mod swin;

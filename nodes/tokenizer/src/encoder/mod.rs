@@ -1,0 +1,5 @@
+//! The tokenizer's encoder parts.
+
+pub mod pillar_net;
+
+pub use pillar_net::{PillarNet, PillarNetConfig, scatter_to_bev};
