@@ -1,5 +1,6 @@
 //! The tokenizer's encoder parts.
 
 pub mod pillar_net;
+pub mod projection;
 
 pub use pillar_net::{PillarNet, PillarNetConfig, scatter_to_bev};

@@ -1,6 +1,7 @@
 //! NeRF-style rendering of the voxel field: trilinear sampling along rays and log-space
 //! volume rendering weights.
 
+pub mod rays;
 pub mod trilinear;
 pub mod volume;
 
