@@ -1,0 +1,108 @@
+//! Deformable cross-attention from the LiDAR BEV into the cameras (the paper's fusion).
+//!
+//! Each BEV cell is a query. Its K reference points along the pillar's height are projected into
+//! every camera (`projection.rs`); around each projection the query predicts a learned offset
+//! (zero at initialisation, so sampling starts at the geometric point) and an attention weight.
+//! Image features are read with `grid_sample_2d` (bilinear, zero padding). The weights are a
+//! softmax over the (camera, point) pairs that are valid, times their validity: a point behind a
+//! camera or outside its image gets weight exactly 0, and a query that no camera sees gets
+//! nothing from the images, only its residual.
+
+use burn::nn::{Initializer, Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::softmax;
+use burn::tensor::ops::GridSampleOptions;
+
+use crate::swin::window::MASKED;
+
+#[derive(Config, Debug, PartialEq)]
+pub struct DeformableFusionConfig {
+    /// Channels of the BEV queries and of the output.
+    pub dim: usize,
+    /// Channels of the image features.
+    pub image_channels: usize,
+    pub cameras: usize,
+    /// Reference points per query along the pillar's height (K = 4 in the paper).
+    pub heights: usize,
+}
+
+#[derive(Module, Debug)]
+pub struct DeformableFusion {
+    value: Linear,
+    offsets: Linear,
+    weights: Linear,
+    output: Linear,
+    #[module(skip)]
+    cameras: usize,
+    #[module(skip)]
+    heights: usize,
+}
+
+impl DeformableFusionConfig {
+    pub fn init(&self, device: &Device) -> DeformableFusion {
+        DeformableFusion {
+            value: LinearConfig::new(self.image_channels, self.dim).init(device),
+            offsets: LinearConfig::new(self.dim, self.cameras * self.heights * 2)
+                .with_initializer(Initializer::Zeros)
+                .init(device),
+            weights: LinearConfig::new(self.dim, self.cameras * self.heights).init(device),
+            output: LinearConfig::new(self.dim, self.dim).init(device),
+            cameras: self.cameras,
+            heights: self.heights,
+        }
+    }
+}
+
+impl DeformableFusion {
+    /// `reference`: where each query's points land in each camera, in `grid_sample_2d`'s
+    /// [-1, 1] coordinates; `valid`: 1 where that projection is in front of the camera and
+    /// inside its image.
+    // bev [1, C, H, W], images [N_c, C_img, h, w], reference [N_c, Q, K, 2], valid [N_c, Q, K]
+    // -> [1, C, H, W], with Q = H * W
+    pub fn forward(
+        &self,
+        bev: Tensor<4>,
+        images: Tensor<4>,
+        reference: Tensor<4>,
+        valid: Tensor<3>,
+    ) -> Tensor<4> {
+        let [_, dim, height, width] = bev.dims();
+        let [cameras, _, feature_h, feature_w] = images.dims();
+        let (queries, k) = (height * width, self.heights);
+        let query = bev.reshape([dim, queries]).swap_dims(0, 1); // [Q, C]
+
+        let value = self
+            .value
+            .forward(images.permute([0, 2, 3, 1])) // [N_c, h, w, C]
+            .permute([0, 3, 1, 2]); // [N_c, C, h, w]
+        // Offsets in feature-map cells, turned into [-1, 1] units.
+        let scale = Tensor::<1>::from_data(
+            TensorData::new(vec![2.0 / feature_w as f32, 2.0 / feature_h as f32], [2]),
+            &query.device(),
+        )
+        .reshape([1, 1, 1, 2]);
+        let offsets = self
+            .offsets
+            .forward(query.clone())
+            .reshape([queries, cameras, k, 2])
+            .swap_dims(0, 1)
+            * scale; // [N_c, Q, K, 2]
+        let grid = reference + offsets;
+
+        let valid_qck = valid.swap_dims(0, 1).reshape([queries, cameras * k]); // [Q, N_c*K]
+        let logits = self.weights.forward(query.clone()) // [Q, N_c*K]
+            + (valid_qck.clone().neg().add_scalar(1.0)).mul_scalar(MASKED);
+        let attention = (softmax(logits, 1) * valid_qck)
+            .reshape([queries, cameras, k])
+            .swap_dims(0, 1); // [N_c, Q, K]
+
+        let sampled = value.grid_sample_2d(grid, GridSampleOptions::default()); // [N_c, C, Q, K]
+        let fused = (sampled * attention.reshape([cameras, 1, queries, k]))
+            .sum_dim(3)
+            .sum_dim(0)
+            .reshape([dim, queries])
+            .swap_dims(0, 1); // [Q, C]
+        let out = query + self.output.forward(fused); // [Q, C]
+        out.swap_dims(0, 1).reshape([1, dim, height, width])
+    }
+}
