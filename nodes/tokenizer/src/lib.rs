@@ -4,5 +4,6 @@
 
 pub mod decoder;
 pub mod encoder;
+pub mod latent;
 pub mod render;
 pub mod swin;

@@ -1,0 +1,8 @@
+//! The 4-channel latent: compression of the fused BEV feature, and the per-channel statistics
+//! the world model standardises with.
+
+pub mod compress;
+pub mod stats;
+
+pub use compress::{LatentCompress, LatentCompressConfig};
+pub use stats::{LatentStats, LatentStatsAccumulator};
