@@ -2,6 +2,7 @@
 //! and the LiDAR BEV, the pillar feature net, the decoder that lifts the latent to voxels, and
 //! the NeRF-style renderer that turns voxel features back into images and depths.
 
+pub mod config;
 pub mod decoder;
 pub mod encoder;
 pub mod latent;

@@ -1,0 +1,205 @@
+//! The tokenizer's sizes, read from `configs/models/tokenizer-*.yaml`, and the sizes that
+//! follow from them. `problems` reports every inconsistency at once, naming the field.
+
+use std::path::Path;
+
+use burn::prelude::*;
+
+use crate::decoder::VoxelLiftConfig;
+use crate::render::rays::VoxelPlacement;
+use crate::swin::SwinConfig;
+
+/// The BEV region the latent covers, in the ego frame (metres), and its pillar grid.
+#[derive(Config, Debug, PartialEq)]
+pub struct BevRegion {
+    pub x_range: [f64; 2],
+    pub y_range: [f64; 2],
+    pub z_range: [f64; 2],
+    /// Pillars along x and along y (384 in the paper).
+    pub pillar_grid: usize,
+}
+
+#[derive(Config, Debug, PartialEq)]
+pub struct RenderConfig {
+    /// Samples per ray, N_r (150 in the paper).
+    pub samples: usize,
+    pub near: f64,
+    pub far: f64,
+    /// Camera rays are cast on a grid this many times coarser than the image (8).
+    pub camera_stride: usize,
+    /// Hidden width of the MLP that predicts α from a voxel feature.
+    pub alpha_hidden: usize,
+    /// Hidden width of the RGB upsampler.
+    pub upsampler_hidden: usize,
+}
+
+#[derive(Config, Debug, PartialEq)]
+pub struct TokenizerConfig {
+    pub name: String,
+    pub cameras: usize,
+    /// Network input size of every camera image, [height, width].
+    pub image_size: [usize; 2],
+    pub bev: BevRegion,
+    pub image_backbone: SwinConfig,
+    /// Channels of the pillar feature net (64).
+    pub pillar_channels: usize,
+    /// Swin on the pillar BEV; its output grid is the latent grid, its width the fused width.
+    pub lidar_backbone: SwinConfig,
+    /// Reference points per BEV cell along the pillar's height (K = 4).
+    pub fusion_heights: usize,
+    pub latent_channels: usize,
+    pub decoder: VoxelLiftConfig,
+    pub render: RenderConfig,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: {message}")]
+    Read { path: String, message: String },
+    #[error("{path}: {}", problems.join("; "))]
+    Invalid { path: String, problems: Vec<String> },
+}
+
+impl TokenizerConfig {
+    /// Reads and checks a model YAML.
+    pub fn from_yaml_file(path: &Path) -> Result<Self, ConfigError> {
+        let shown = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: shown.clone(),
+            message: e.to_string(),
+        })?;
+        Self::from_yaml(&text, &shown)
+    }
+
+    pub fn from_yaml(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        let config: Self = serde_saphyr::from_str(text).map_err(|e| ConfigError::Read {
+            path: origin.to_string(),
+            message: e.to_string(),
+        })?;
+        let problems = config.problems();
+        if problems.is_empty() {
+            Ok(config)
+        } else {
+            Err(ConfigError::Invalid {
+                path: origin.to_string(),
+                problems,
+            })
+        }
+    }
+
+    /// Latent cells along y and x.
+    pub fn latent_size(&self) -> usize {
+        self.bev.pillar_grid / self.lidar_backbone.stride().max(1)
+    }
+
+    /// Channels of the fused BEV feature (before compression).
+    pub fn fused_channels(&self) -> usize {
+        self.lidar_backbone.out_channels()
+    }
+
+    /// Image feature map size, [height, width].
+    pub fn image_feature_size(&self) -> [usize; 2] {
+        let stride = self.image_backbone.stride().max(1);
+        [self.image_size[0] / stride, self.image_size[1] / stride]
+    }
+
+    /// Voxel grid `[C_v, Z, Y, X]`.
+    pub fn voxel_shape(&self) -> [usize; 4] {
+        let n = self.latent_size();
+        self.decoder.voxel_shape(n, n)
+    }
+
+    /// Where the voxel grid sits in the ego frame.
+    pub fn voxel_placement(&self) -> VoxelPlacement {
+        let [_, z, y, x] = self.voxel_shape();
+        let span = |r: [f64; 2], n: usize| ((r[1] - r[0]) / n.max(1) as f64) as f32;
+        VoxelPlacement {
+            min: [
+                self.bev.x_range[0] as f32,
+                self.bev.y_range[0] as f32,
+                self.bev.z_range[0] as f32,
+            ],
+            voxel_size: [
+                span(self.bev.x_range, x),
+                span(self.bev.y_range, y),
+                span(self.bev.z_range, z),
+            ],
+        }
+    }
+
+    /// Every inconsistency, one line each, naming the field.
+    pub fn problems(&self) -> Vec<String> {
+        let mut problems = self.image_backbone.problems("image_backbone");
+        problems.extend(self.lidar_backbone.problems("lidar_backbone"));
+        if self.image_backbone.in_channels != 3 {
+            problems.push("image_backbone.in_channels: must be 3 (RGB)".into());
+        }
+        if self.lidar_backbone.in_channels != self.pillar_channels {
+            problems.push(format!(
+                "lidar_backbone.in_channels: {} but pillar_channels is {}",
+                self.lidar_backbone.in_channels, self.pillar_channels
+            ));
+        }
+        for (name, r) in [
+            ("bev.x_range", self.bev.x_range),
+            ("bev.y_range", self.bev.y_range),
+            ("bev.z_range", self.bev.z_range),
+        ] {
+            if !(r[0] < r[1]) {
+                problems.push(format!("{name}: [{}, {}] is empty", r[0], r[1]));
+            }
+        }
+        let stride = self.lidar_backbone.stride();
+        if self.bev.pillar_grid == 0 || stride == 0 || self.bev.pillar_grid % stride != 0 {
+            problems.push(format!(
+                "bev.pillar_grid: {} is not a multiple of the LiDAR backbone's stride {stride}",
+                self.bev.pillar_grid
+            ));
+        }
+        let image_stride = self.image_backbone.stride();
+        if self
+            .image_size
+            .iter()
+            .any(|&s| s == 0 || s % image_stride.max(1) != 0)
+        {
+            problems.push(format!(
+                "image_size: {:?} is not a multiple of the image backbone's stride {image_stride}",
+                self.image_size
+            ));
+        }
+        let camera_stride = self.render.camera_stride;
+        if camera_stride == 0
+            || !camera_stride.is_power_of_two()
+            || self.image_size.iter().any(|&s| s % camera_stride != 0)
+        {
+            problems.push(format!(
+                "render.camera_stride: {camera_stride} must be a power of two dividing image_size"
+            ));
+        }
+        if self.decoder.latent_channels != self.latent_channels {
+            problems.push(format!(
+                "decoder.latent_channels: {} but latent_channels is {}",
+                self.decoder.latent_channels, self.latent_channels
+            ));
+        }
+        if self.decoder.dim % 2 != 0 {
+            problems.push("decoder.dim: must be even (patch expanding halves it)".into());
+        }
+        if self.voxel_shape()[3] != self.bev.pillar_grid {
+            problems.push(format!(
+                "decoder.cell_split: the voxel grid has {} cells across, the pillar grid {}",
+                self.voxel_shape()[3],
+                self.bev.pillar_grid
+            ));
+        }
+        if !(self.render.near > 0.0 && self.render.near < self.render.far)
+            || self.render.samples == 0
+        {
+            problems.push("render: needs 0 < near < far and at least one sample".into());
+        }
+        if self.cameras == 0 || self.fusion_heights == 0 || self.latent_channels == 0 {
+            problems.push("cameras, fusion_heights and latent_channels must be positive".into());
+        }
+        problems
+    }
+}

@@ -1,0 +1,64 @@
+//! The committed model configs parse, are consistent, and give the paper's sizes; a broken
+//! config names every bad field.
+
+use std::path::PathBuf;
+
+use bevworld_tokenizer::config::{ConfigError, TokenizerConfig};
+
+fn model(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../configs/models")
+        .join(name)
+}
+
+#[test]
+fn paper_config_has_the_papers_sizes() {
+    let config = TokenizerConfig::from_yaml_file(&model("tokenizer-paper.yaml")).expect("paper");
+    assert_eq!(config.latent_size(), 96);
+    assert_eq!(config.latent_channels, 4);
+    assert_eq!(config.fused_channels(), 256);
+    assert_eq!(config.voxel_shape(), [16, 64, 384, 384]);
+    assert_eq!(config.decoder.block_channels(), 4096);
+    assert_eq!(config.image_backbone.out_channels(), 768);
+    assert_eq!(config.image_feature_size(), [8, 22]);
+    assert_eq!(config.render.samples, 150);
+    let placement = config.voxel_placement();
+    assert!((placement.voxel_size[0] - 160.0 / 384.0).abs() < 1e-6);
+    assert!((placement.voxel_size[2] - 9.0 / 64.0).abs() < 1e-6);
+}
+
+#[test]
+fn tiny_config_is_consistent() {
+    let config = TokenizerConfig::from_yaml_file(&model("tokenizer-tiny.yaml")).expect("tiny");
+    assert_eq!(config.latent_size(), 32);
+    assert_eq!(config.voxel_shape(), [8, 16, 128, 128]);
+    assert_eq!(config.image_feature_size(), [8, 14]);
+}
+
+#[test]
+fn a_broken_config_names_every_bad_field() {
+    let text = std::fs::read_to_string(model("tokenizer-tiny.yaml")).expect("read");
+    let broken = text
+        .replace("pillar_grid: 128", "pillar_grid: 130")
+        .replace("heads: [2, 4]", "heads: [2, 5]")
+        .replace("camera_stride: 8", "camera_stride: 6");
+    let err = TokenizerConfig::from_yaml(&broken, "broken.yaml").unwrap_err();
+    let message = err.to_string();
+    assert!(matches!(err, ConfigError::Invalid { .. }));
+    for field in [
+        "broken.yaml",
+        "bev.pillar_grid",
+        "image_backbone.heads[1]",
+        "render.camera_stride",
+    ] {
+        assert!(message.contains(field), "{field} missing from: {message}");
+    }
+    let err = TokenizerConfig::from_yaml("name: x\ncameras: six\n", "typo.yaml").unwrap_err();
+    assert!(err.to_string().contains("typo.yaml"), "{err}");
+    assert!(
+        TokenizerConfig::from_yaml_file(&model("absent.yaml"))
+            .unwrap_err()
+            .to_string()
+            .contains("absent.yaml")
+    );
+}
