@@ -6,5 +6,8 @@ pub mod config;
 pub mod decoder;
 pub mod encoder;
 pub mod latent;
+pub mod model;
 pub mod render;
 pub mod swin;
+pub use config::TokenizerConfig;
+pub use model::{Encoded, EncoderInput, RayRender, Tokenizer};

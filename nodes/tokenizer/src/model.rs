@@ -1,0 +1,167 @@
+//! The assembled tokenizer: six cameras and a pillarised sweep in, a 4-channel BEV latent out;
+//! the latent lifted to voxels and rendered along any subset of rays.
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+use crate::config::TokenizerConfig;
+use crate::decoder::{RgbUpsampler, RgbUpsamplerConfig, VoxelLift};
+use crate::encoder::fusion::{DeformableFusion, DeformableFusionConfig};
+use crate::encoder::{PillarNet, PillarNetConfig, scatter_to_bev};
+use crate::latent::{LatentCompress, LatentCompressConfig};
+use crate::render::{expected_depth, expected_feature, render_weights, sample_trilinear};
+use crate::swin::SwinBackbone;
+
+/// What the encoder reads for one frame.
+pub struct EncoderInput {
+    /// Camera images in [0, 1] at the config's `image_size`: `[N_c, 3, H, W]`.
+    pub images: Tensor<4>,
+    /// Padded pillar points `[P, N, 9]` and their validity `[P, N]`.
+    pub pillar_points: Tensor<3>,
+    pub pillar_valid: Tensor<2>,
+    /// Row-major pillar-grid cell of each pillar, `[P]`.
+    pub pillar_cells: Tensor<1, Int>,
+    /// The fusion's reference points in each camera, `[N_c, Q, K, 2]`, and their validity
+    /// `[N_c, Q, K]`, with Q the latent cells (see `encoder::projection`).
+    pub reference: Tensor<4>,
+    pub reference_valid: Tensor<3>,
+}
+
+/// The encoder's outputs.
+pub struct Encoded {
+    /// `[1, C', h, w]`.
+    pub latent: Tensor<4>,
+    /// The fused BEV feature before compression, `[1, C, h, w]`.
+    pub fused: Tensor<4>,
+}
+
+/// What rendering a batch of rays gives.
+pub struct RayRender {
+    /// Expected voxel feature per ray, `[R, C_v]`.
+    pub features: Tensor<2>,
+    /// Expected depth per ray, `[R]`.
+    pub depth: Tensor<1>,
+    /// Sum of the weights (1 − final transmittance) per ray, `[R]`.
+    pub opacity: Tensor<1>,
+}
+
+#[derive(Module, Debug)]
+pub struct Tokenizer {
+    image_backbone: SwinBackbone,
+    pillar_net: PillarNet,
+    lidar_backbone: SwinBackbone,
+    fusion: DeformableFusion,
+    compress: LatentCompress,
+    lift: VoxelLift,
+    alpha_hidden: Linear,
+    alpha_out: Linear,
+    upsampler: RgbUpsampler,
+    #[module(skip)]
+    pillar_grid: usize,
+}
+
+impl TokenizerConfig {
+    /// The model, randomly initialised. Check `problems()` first (`from_yaml` does).
+    pub fn init(&self, device: &Device) -> Tokenizer {
+        let voxel_channels = self.decoder.voxel_channels;
+        Tokenizer {
+            image_backbone: self.image_backbone.init(device),
+            pillar_net: PillarNetConfig::new(self.pillar_channels).init(device),
+            lidar_backbone: self.lidar_backbone.init(device),
+            fusion: DeformableFusionConfig::new(
+                self.fused_channels(),
+                self.image_backbone.out_channels(),
+                self.cameras,
+                self.fusion_heights,
+            )
+            .init(device),
+            compress: LatentCompressConfig::new(self.fused_channels(), self.latent_channels)
+                .init(device),
+            lift: self.decoder.init(device),
+            alpha_hidden: LinearConfig::new(voxel_channels, self.render.alpha_hidden).init(device),
+            alpha_out: LinearConfig::new(self.render.alpha_hidden, 1).init(device),
+            upsampler: RgbUpsamplerConfig::new(
+                voxel_channels,
+                self.render.upsampler_hidden,
+                self.render.camera_stride.trailing_zeros() as usize,
+            )
+            .init(device),
+            pillar_grid: self.bev.pillar_grid,
+        }
+    }
+}
+
+impl Tokenizer {
+    pub fn encode(&self, input: EncoderInput) -> Encoded {
+        let image_features = self.image_backbone.forward(input.images); // [N_c, C_img, h_i, w_i]
+        let pillars = self
+            .pillar_net
+            .forward(input.pillar_points, input.pillar_valid); // [P, C_p]
+        let bev = scatter_to_bev(
+            pillars,
+            input.pillar_cells,
+            self.pillar_grid,
+            self.pillar_grid,
+        );
+        let lidar = self.lidar_backbone.forward(bev); // [1, C, h, w]
+        let fused = self.fusion.forward(
+            lidar,
+            image_features,
+            input.reference,
+            input.reference_valid,
+        );
+        Encoded {
+            latent: self.compress.forward(fused.clone()),
+            fused,
+        }
+    }
+
+    /// The voxel field of a latent.
+    // [1, C', h, w] -> [1, C_v, Z, Y, X]
+    pub fn voxels(&self, latent: Tensor<4>) -> Tensor<5> {
+        self.lift.forward(latent)
+    }
+
+    /// Renders `rays` rays of `S` samples each. `positions` are the samples in voxel units
+    /// (`render::rays::sample_positions`), `depths` the samples' distances along the ray.
+    // voxels [1, C_v, Z, Y, X], positions [1, R * S, 3], depths [1, S]
+    pub fn render_rays(
+        &self,
+        voxels: Tensor<5>,
+        positions: Tensor<3>,
+        rays: usize,
+        depths: Tensor<2>,
+    ) -> RayRender {
+        let [_, samples] = depths.dims();
+        let features = sample_trilinear(voxels, positions); // [1, R * S, C_v]
+        let [_, _, channels] = features.dims();
+        let features = features.reshape([rays, samples, channels]);
+        let logits = self
+            .alpha_out
+            .forward(relu(self.alpha_hidden.forward(features.clone())))
+            .reshape([rays, samples]);
+        let weights = render_weights(logits); // [R, S]
+        RayRender {
+            opacity: weights.clone().sum_dim(1).reshape([rays]),
+            depth: expected_depth(weights.clone(), depths),
+            features: expected_feature(weights, features),
+        }
+    }
+
+    /// RGB images from the rendered features of every camera ray, rays row by row per camera.
+    // [N_c * h_r * w_r, C_v] -> [N_c, 3, h_r * stride, w_r * stride]
+    pub fn camera_rgb(
+        &self,
+        features: Tensor<2>,
+        cameras: usize,
+        rows: usize,
+        columns: usize,
+    ) -> Tensor<4> {
+        let [_, channels] = features.dims();
+        let grid = features
+            .reshape([cameras, rows, columns, channels])
+            .permute([0, 3, 1, 2]);
+        self.upsampler.forward(grid)
+    }
+}
