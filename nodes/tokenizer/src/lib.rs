@@ -9,5 +9,7 @@ pub mod latent;
 pub mod model;
 pub mod render;
 pub mod swin;
+pub mod weights;
 pub use config::TokenizerConfig;
 pub use model::{Encoded, EncoderInput, RayRender, Tokenizer};
+pub use weights::{WeightsError, load_weights, save_weights};
