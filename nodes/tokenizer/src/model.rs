@@ -137,16 +137,22 @@ impl Tokenizer {
         let features = sample_trilinear(voxels, positions); // [1, R * S, C_v]
         let [_, _, channels] = features.dims();
         let features = features.reshape([rays, samples, channels]);
-        let logits = self
-            .alpha_out
-            .forward(relu(self.alpha_hidden.forward(features.clone())))
-            .reshape([rays, samples]);
+        let logits = self.alpha_logits(features.clone()); // [R, S]
         let weights = render_weights(logits); // [R, S]
         RayRender {
             opacity: weights.clone().sum_dim(1).reshape([rays]),
             depth: expected_depth(weights.clone(), depths),
             features: expected_feature(weights, features),
         }
+    }
+
+    /// Alpha logits `s` of voxel features (α = σ(s)): the density head every sample shares.
+    // [R, S, C_v] -> [R, S]
+    pub fn alpha_logits(&self, features: Tensor<3>) -> Tensor<2> {
+        let [rays, samples, _] = features.dims();
+        self.alpha_out
+            .forward(relu(self.alpha_hidden.forward(features)))
+            .reshape([rays, samples])
     }
 
     /// RGB images from the rendered features of every camera ray, rays row by row per camera.

@@ -1,9 +1,13 @@
 //! NeRF-style rendering of the voxel field: trilinear sampling along rays and log-space
 //! volume rendering weights.
 
+pub mod batched;
 pub mod rays;
+pub mod skipping;
 pub mod trilinear;
 pub mod volume;
 
+pub use batched::{RenderedRays, VoxelScene};
+pub use skipping::{OccupancyGrid, SkipOptions};
 pub use trilinear::sample_trilinear;
 pub use volume::{expected_depth, expected_feature, log_transmittance_after, render_weights};

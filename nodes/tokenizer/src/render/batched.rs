@@ -1,0 +1,121 @@
+//! Inference rendering of any number of rays in bounded memory: rays go through the model in
+//! chunks, and the per-ray results come back to the host. Training renders its small random
+//! ray batches with `Tokenizer::render_rays` directly, keeping the graph for backprop.
+
+use burn::prelude::*;
+
+use crate::config::TokenizerConfig;
+use crate::model::Tokenizer;
+use crate::render::rays::{Rays, VoxelPlacement, sample_depths, sample_positions};
+
+/// What rendering a set of rays gives, on the host.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RenderedRays {
+    /// Expected voxel feature per ray, `[R, C_v]` row-major.
+    pub features: Vec<f32>,
+    pub channels: usize,
+    /// Expected depth `Σ w_i t_i` per ray, metres.
+    pub depth: Vec<f32>,
+    /// `1 − T` per ray: how much of the ray the scene absorbed.
+    pub opacity: Vec<f32>,
+    /// Samples that went through trilinear sampling and the alpha head (the cost), against the
+    /// `rays × samples` a dense render evaluates.
+    pub samples_evaluated: u64,
+    pub samples_dense: u64,
+}
+
+impl RenderedRays {
+    pub fn rays(&self) -> usize {
+        self.depth.len()
+    }
+
+    /// Depths normalised by opacity: where a ray's mass lies, even for a half-transparent
+    /// ray. Rays with no opacity get `fallback`.
+    pub fn surface_depth(&self, fallback: f32) -> Vec<f32> {
+        self.depth
+            .iter()
+            .zip(&self.opacity)
+            .map(|(&d, &o)| if o > 1e-6 { d / o } else { fallback })
+            .collect()
+    }
+
+    /// The features of rays `start .. start + count` as a tensor `[count, C_v]`.
+    pub fn features_tensor(&self, start: usize, count: usize, device: &Device) -> Tensor<2> {
+        let c = self.channels;
+        Tensor::from_data(
+            TensorData::new(
+                self.features[start * c..(start + count) * c].to_vec(),
+                [count, c],
+            ),
+            device,
+        )
+    }
+}
+
+/// A tensor's values on the host, row-major.
+pub(crate) fn host_vec<const D: usize>(tensor: Tensor<D>) -> Vec<f32> {
+    tensor.into_data().try_to_vec::<f32>().unwrap_or_default()
+}
+
+/// A voxel field ready to render: the model whose alpha head reads it, the voxels, the fixed
+/// sample depths and where the grid sits in the ego frame.
+pub struct VoxelScene<'a> {
+    pub model: &'a Tokenizer,
+    /// `[1, C_v, Z, Y, X]`.
+    pub voxels: Tensor<5>,
+    pub depths: Vec<f32>,
+    pub placement: VoxelPlacement,
+    /// Rays per pass through the model, which bounds memory.
+    pub chunk: usize,
+}
+
+impl<'a> VoxelScene<'a> {
+    /// The scene of `voxels` with the sampling the model's config prescribes.
+    pub fn new(model: &'a Tokenizer, config: &TokenizerConfig, voxels: Tensor<5>) -> Self {
+        Self {
+            model,
+            voxels,
+            depths: sample_depths(
+                config.render.near as f32,
+                config.render.far as f32,
+                config.render.samples,
+            ),
+            placement: config.voxel_placement(),
+            chunk: 4096,
+        }
+    }
+
+    pub fn channels(&self) -> usize {
+        self.voxels.dims()[1]
+    }
+
+    /// Renders every ray densely, all samples, `chunk` rays at a time.
+    pub fn render_dense(&self, rays: &Rays) -> RenderedRays {
+        let device = self.voxels.device();
+        let depths = &self.depths;
+        let depth_row =
+            Tensor::<2>::from_data(TensorData::new(depths.clone(), [1, depths.len()]), &device);
+        let mut out = RenderedRays {
+            channels: self.channels(),
+            samples_dense: (rays.len() * depths.len()) as u64,
+            ..RenderedRays::default()
+        };
+        let chunk = self.chunk.max(1);
+        for start in (0..rays.len()).step_by(chunk) {
+            let indices: Vec<usize> = (start..(start + chunk).min(rays.len())).collect();
+            let part = rays.subset(&indices);
+            let positions = sample_positions(&part, depths, &self.placement, &device);
+            let rendered = self.model.render_rays(
+                self.voxels.clone(),
+                positions,
+                part.len(),
+                depth_row.clone(),
+            );
+            out.features.extend(host_vec(rendered.features));
+            out.depth.extend(host_vec(rendered.depth));
+            out.opacity.extend(host_vec(rendered.opacity));
+            out.samples_evaluated += (part.len() * depths.len()) as u64;
+        }
+        out
+    }
+}

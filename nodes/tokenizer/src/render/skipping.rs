@@ -1,0 +1,312 @@
+//! Empty-space skipping and early ray termination, for inference.
+//!
+//! - **Occupancy.** α is evaluated once per voxel centre (one pass of the alpha head over the
+//!   grid, shared by every ray of every view). A voxel is occupied when α > `alpha_threshold`.
+//!   The occupied set is dilated by one voxel, because a trilinear sample reads the 8 voxels
+//!   around it, and pooled into coarse cells of `cell³` voxels. A sample is kept when the
+//!   coarse cell of its nearest voxel is occupied. Samples outside the grid read zero features,
+//!   so they are kept only if α of the zero feature exceeds the threshold.
+//! - **Early stop.** Kept samples go through the model in segments of `segment` per ray; after
+//!   each, a ray whose transmittance fell below `stop_transmittance` is finished.
+//!
+//! What is skipped is not exactly zero: α of an interpolated feature is not the interpolation
+//! of α, and a stopped ray drops at most `stop_transmittance` of its weight. The error is
+//! measured, not assumed (see `bench/results/tokenizer.md`). With `alpha_threshold < 0` and
+//! `stop_transmittance = 0` nothing is skipped and the result equals the dense render.
+
+use burn::prelude::*;
+use burn::tensor::Bool;
+use serde::{Deserialize, Serialize};
+
+use crate::render::batched::{RenderedRays, VoxelScene, host_vec};
+use crate::render::rays::Rays;
+use crate::render::{log_transmittance_after, render_weights, sample_trilinear};
+
+/// The logit padding samples get: α = σ(−1e4) = 0 and log(1 − α) = 0, exactly, in f32.
+const PADDING_LOGIT: f32 = -1e4;
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkipOptions {
+    /// A voxel with α at or below this is empty.
+    #[serde(default = "default_threshold")]
+    pub alpha_threshold: f32,
+    /// Coarse occupancy cells are `cell³` voxels.
+    #[serde(default = "default_cell")]
+    pub cell: usize,
+    /// A ray stops once its transmittance is below this.
+    #[serde(default = "default_stop")]
+    pub stop_transmittance: f32,
+    /// Kept samples per ray per pass through the model.
+    #[serde(default = "default_segment")]
+    pub segment: usize,
+}
+
+fn default_threshold() -> f32 {
+    1e-3
+}
+fn default_cell() -> usize {
+    2
+}
+fn default_stop() -> f32 {
+    1e-4
+}
+fn default_segment() -> usize {
+    12
+}
+
+impl Default for SkipOptions {
+    fn default() -> Self {
+        Self {
+            alpha_threshold: default_threshold(),
+            cell: default_cell(),
+            stop_transmittance: default_stop(),
+            segment: default_segment(),
+        }
+    }
+}
+
+impl SkipOptions {
+    pub fn problems(&self) -> Vec<String> {
+        let mut problems = Vec::new();
+        if !self.alpha_threshold.is_finite() || self.alpha_threshold >= 1.0 {
+            problems.push(format!(
+                "alpha_threshold: {} (accepted: a finite number below 1)",
+                self.alpha_threshold
+            ));
+        }
+        if self.cell == 0 {
+            problems.push("cell: 0 (accepted: an integer >= 1)".into());
+        }
+        if !(0.0..1.0).contains(&self.stop_transmittance) {
+            problems.push(format!(
+                "stop_transmittance: {} (accepted: [0, 1))",
+                self.stop_transmittance
+            ));
+        }
+        if self.segment == 0 {
+            problems.push("segment: 0 (accepted: an integer >= 1)".into());
+        }
+        problems
+    }
+}
+
+/// Coarse occupancy of a voxel field.
+#[derive(Clone, Debug)]
+pub struct OccupancyGrid {
+    /// Coarse cells `[cz, cy, cx]`, row-major.
+    occupied: Vec<bool>,
+    coarse: [usize; 3],
+    /// Fine voxels `[Z, Y, X]`.
+    voxels: [usize; 3],
+    cell: usize,
+    /// Whether a sample outside the grid (zero feature) is dense enough to keep.
+    outside_occupied: bool,
+    /// Fraction of voxels with α above the threshold, before dilation.
+    pub occupied_fraction: f64,
+}
+
+impl OccupancyGrid {
+    /// Evaluates α at every voxel centre, `z_chunk` slices of the grid at a time.
+    // voxels [1, C_v, Z, Y, X]
+    pub fn build(scene: &VoxelScene, options: &SkipOptions) -> Self {
+        let (model, voxels) = (scene.model, &scene.voxels);
+        let [_, channels, z, y, x] = voxels.dims();
+        let device = voxels.device();
+        let threshold = options.alpha_threshold;
+        let alpha_of = |features: Tensor<3>| -> Vec<f32> {
+            let logits = model.alpha_logits(features);
+            host_vec(burn::tensor::activation::sigmoid(logits))
+        };
+        // Bound the [cells, C_v] intermediate to about 4 M values.
+        let z_chunk = (4 << 20) / (y * x * channels.max(1)).max(1);
+        let z_chunk = z_chunk.clamp(1, z.max(1));
+        let mut fine = Vec::with_capacity(z * y * x);
+        for z0 in (0..z).step_by(z_chunk) {
+            let dz = z_chunk.min(z - z0);
+            let slab = voxels
+                .clone()
+                .narrow(2, z0, dz)
+                .permute([0, 2, 3, 4, 1])
+                .reshape([1, dz * y * x, channels]);
+            fine.extend(alpha_of(slab).into_iter().map(|a| a > threshold));
+        }
+        let zero = Tensor::<3>::zeros([1, 1, channels], &device);
+        let outside_occupied = alpha_of(zero).first().is_some_and(|&a| a > threshold);
+
+        let cell = options.cell.max(1);
+        let coarse = [z.div_ceil(cell), y.div_ceil(cell), x.div_ceil(cell)];
+        let mut occupied = vec![false; coarse[0] * coarse[1] * coarse[2]];
+        let mut count = 0usize;
+        for iz in 0..z {
+            for iy in 0..y {
+                for ix in 0..x {
+                    if !fine[(iz * y + iy) * x + ix] {
+                        continue;
+                    }
+                    count += 1;
+                    // Dilate by one voxel, then pool into coarse cells.
+                    let span = |i: usize, n: usize| {
+                        (i.saturating_sub(1) / cell)..=((i + 1).min(n - 1) / cell)
+                    };
+                    for cz in span(iz, z) {
+                        for cy in span(iy, y) {
+                            for cx in span(ix, x) {
+                                occupied[(cz * coarse[1] + cy) * coarse[2] + cx] = true;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Self {
+            occupied,
+            coarse,
+            voxels: [z, y, x],
+            cell,
+            outside_occupied,
+            occupied_fraction: count as f64 / (z * y * x).max(1) as f64,
+        }
+    }
+
+    /// Whether a sample at `p` (voxel units, x y z) may have α above the threshold.
+    pub fn keeps(&self, p: [f32; 3]) -> bool {
+        let [z, y, x] = self.voxels;
+        let nearest = |v: f32, n: usize| -> Option<usize> {
+            let r = v.round();
+            (r >= 0.0 && r < n as f32).then_some(r as usize)
+        };
+        match (nearest(p[0], x), nearest(p[1], y), nearest(p[2], z)) {
+            (Some(ix), Some(iy), Some(iz)) => {
+                let c = self.cell;
+                self.occupied[((iz / c) * self.coarse[1] + iy / c) * self.coarse[2] + ix / c]
+            }
+            _ => self.outside_occupied,
+        }
+    }
+}
+
+impl VoxelScene<'_> {
+    /// Renders `rays`, evaluating only kept samples and stopping opaque rays early.
+    pub fn render_skipping(
+        &self,
+        grid: &OccupancyGrid,
+        rays: &Rays,
+        options: &SkipOptions,
+    ) -> RenderedRays {
+        let (model, voxels, depths, placement, chunk) = (
+            self.model,
+            &self.voxels,
+            &self.depths,
+            &self.placement,
+            self.chunk,
+        );
+        let device = voxels.device();
+        let [_, channels, _, _, _] = voxels.dims();
+        let r_count = rays.len();
+        // Per ray: the kept samples' positions (voxel units) and depths, in order along the ray.
+        let mut kept: Vec<Vec<([f32; 3], f32)>> = Vec::with_capacity(r_count);
+        for (o, d) in rays.origins.iter().zip(&rays.directions) {
+            let mut samples = Vec::new();
+            for &t in depths.iter() {
+                let mut p = [0.0f32; 3];
+                for axis in 0..3 {
+                    p[axis] = (o[axis] + t * d[axis] - placement.min[axis])
+                        / placement.voxel_size[axis]
+                        - 0.5;
+                }
+                if grid.keeps(p) {
+                    samples.push((p, t));
+                }
+            }
+            kept.push(samples);
+        }
+
+        let mut out = RenderedRays {
+            features: vec![0.0; r_count * channels],
+            channels,
+            depth: vec![0.0; r_count],
+            opacity: vec![0.0; r_count],
+            samples_evaluated: 0,
+            samples_dense: (r_count * depths.len()) as u64,
+        };
+        let mut log_t = vec![0.0f32; r_count];
+        let mut cursor = vec![0usize; r_count];
+        let stop = if options.stop_transmittance > 0.0 {
+            options.stop_transmittance.ln()
+        } else {
+            f32::NEG_INFINITY
+        };
+        let segment = options.segment.max(1);
+        let mut active: Vec<usize> = (0..r_count).filter(|&r| !kept[r].is_empty()).collect();
+        while !active.is_empty() {
+            for batch in active.chunks(chunk.max(1)) {
+                let a = batch.len();
+                let mut positions = Vec::with_capacity(a * segment * 3);
+                let mut sample_depths = Vec::with_capacity(a * segment);
+                let mut padding = Vec::with_capacity(a * segment);
+                let mut offsets = Vec::with_capacity(a);
+                for &r in batch {
+                    let next = &kept[r][cursor[r]..(cursor[r] + segment).min(kept[r].len())];
+                    for i in 0..segment {
+                        match next.get(i) {
+                            Some((p, t)) => {
+                                positions.extend_from_slice(p);
+                                sample_depths.push(*t);
+                                padding.push(false);
+                            }
+                            None => {
+                                positions.extend_from_slice(&[-1e3, -1e3, -1e3]);
+                                sample_depths.push(0.0);
+                                padding.push(true);
+                            }
+                        }
+                    }
+                    out.samples_evaluated += next.len() as u64;
+                    offsets.push(log_t[r].exp());
+                }
+                let positions = Tensor::<3>::from_data(
+                    TensorData::new(positions, [1, a * segment, 3]),
+                    &device,
+                );
+                let features =
+                    sample_trilinear(voxels.clone(), positions).reshape([a, segment, channels]);
+                let padding =
+                    Tensor::<2, Bool>::from_data(TensorData::new(padding, [a, segment]), &device);
+                let logits = model
+                    .alpha_logits(features.clone())
+                    .mask_fill(padding, PADDING_LOGIT); // [A, seg]
+                let transmittance =
+                    Tensor::<2>::from_data(TensorData::new(offsets, [a, 1]), &device);
+                let weights = render_weights(logits.clone()) * transmittance; // [A, seg]
+                let sample_depths =
+                    Tensor::<2>::from_data(TensorData::new(sample_depths, [a, segment]), &device);
+                let depth = host_vec((weights.clone() * sample_depths).sum_dim(1).reshape([a]));
+                let feature = host_vec(
+                    weights
+                        .reshape([a, 1, segment])
+                        .matmul(features)
+                        .reshape([a * channels]),
+                );
+                let log_t_delta = host_vec(
+                    log_transmittance_after(logits)
+                        .narrow(1, segment - 1, 1)
+                        .reshape([a]),
+                );
+                for (i, &r) in batch.iter().enumerate() {
+                    out.depth[r] += depth[i];
+                    for c in 0..channels {
+                        out.features[r * channels + c] += feature[i * channels + c];
+                    }
+                    log_t[r] += log_t_delta[i];
+                    cursor[r] += segment;
+                }
+            }
+            active.retain(|&r| cursor[r] < kept[r].len() && log_t[r] >= stop);
+        }
+        for (opacity, lt) in out.opacity.iter_mut().zip(&log_t) {
+            *opacity = 1.0 - lt.exp();
+        }
+        out
+    }
+}

@@ -1,0 +1,198 @@
+//! Empty-space skipping against the dense render, on a scene with a known answer: a field of
+//! "empty" voxel features (α ≈ 0 under the model's alpha head) holding one solid box of
+//! "occupied" features (α ≈ 1). Rays that hit the box must stop at its face; the skipping
+//! renderer must agree with the dense one while evaluating far fewer samples.
+
+use std::path::PathBuf;
+
+use bevworld_tokenizer::render::rays::Rays;
+use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelScene};
+use bevworld_tokenizer::{Tokenizer, TokenizerConfig};
+use burn::prelude::*;
+use burn::tensor::Distribution;
+
+fn tiny() -> TokenizerConfig {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/models/tokenizer-tiny.yaml");
+    TokenizerConfig::from_yaml_file(&path).expect("tiny config")
+}
+
+/// Two feature vectors whose alpha logits under this model are below −10 and above +10,
+/// found among scaled random candidates (the head is piecewise linear, so large inputs
+/// saturate α one way or the other).
+fn empty_and_occupied(model: &Tokenizer, channels: usize, device: &Device) -> (Vec<f32>, Vec<f32>) {
+    let candidates = 512;
+    let features = Tensor::<3>::random(
+        [1, candidates, channels],
+        Distribution::Normal(0.0, 1.0),
+        device,
+    )
+    .mul_scalar(30.0);
+    let logits = model
+        .alpha_logits(features.clone())
+        .into_data()
+        .try_to_vec::<f32>()
+        .expect("logits");
+    let values = features.into_data().try_to_vec::<f32>().expect("features");
+    let argmin = (0..candidates)
+        .min_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+        .expect("candidates");
+    let argmax = (0..candidates)
+        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+        .expect("candidates");
+    assert!(
+        logits[argmin] < -10.0,
+        "no empty candidate: {}",
+        logits[argmin]
+    );
+    assert!(
+        logits[argmax] > 10.0,
+        "no occupied candidate: {}",
+        logits[argmax]
+    );
+    let row = |i: usize| values[i * channels..(i + 1) * channels].to_vec();
+    (row(argmin), row(argmax))
+}
+
+/// The tiny grid (8 x 16 x 128 x 128 over x, y in [-80, 80), z in [-4.5, 4.5]) filled with
+/// `empty`, with voxels x in 70..80, y in 60..68, all z (ego x in [7.5, 20), y in [-5, 5)) set
+/// to `occupied`.
+fn box_scene(
+    config: &TokenizerConfig,
+    empty: &[f32],
+    occupied: &[f32],
+    device: &Device,
+) -> Tensor<5> {
+    let [c, z, y, x] = config.voxel_shape();
+    let mut data = vec![0.0f32; c * z * y * x];
+    for ch in 0..c {
+        for iz in 0..z {
+            for iy in 0..y {
+                for ix in 0..x {
+                    let inside = (70..80).contains(&ix) && (60..68).contains(&iy);
+                    let value = if inside { occupied[ch] } else { empty[ch] };
+                    data[((ch * z + iz) * y + iy) * x + ix] = value;
+                }
+            }
+        }
+    }
+    Tensor::from_data(TensorData::new(data, [1, c, z, y, x]), device)
+}
+
+/// Horizontal rays from the ego origin at 0.5 m height, fanned over 360°.
+fn fan(count: usize) -> Rays {
+    Rays {
+        origins: vec![[0.0, 0.0, 0.5]; count],
+        directions: (0..count)
+            .map(|i| {
+                let a = i as f32 / count as f32 * std::f32::consts::TAU;
+                [a.cos(), a.sin(), 0.0]
+            })
+            .collect(),
+    }
+}
+
+#[test]
+fn skipping_matches_dense_on_a_box_and_skips_most_samples() {
+    let device = Device::flex();
+    let config = tiny();
+    let model = config.init(&device);
+    let channels = config.decoder.voxel_channels;
+    let (empty, occupied) = empty_and_occupied(&model, channels, &device);
+    let voxels = box_scene(&config, &empty, &occupied, &device);
+    let scene = VoxelScene::new(&model, &config, voxels);
+    let rays = fan(360);
+
+    let dense = scene.render_dense(&rays);
+    let options = SkipOptions::default();
+    let grid = OccupancyGrid::build(&scene, &options);
+    assert!(
+        grid.occupied_fraction > 0.0 && grid.occupied_fraction < 0.01,
+        "occupied fraction {}",
+        grid.occupied_fraction
+    );
+    let skipped = scene.render_skipping(&grid, &rays, &options);
+
+    // The box spans azimuths atan2(±5, 7.5..20): rays at 0° hit its near face at x = 7.5 m.
+    let hit = 0;
+    assert!(dense.opacity[hit] > 0.999, "opacity {}", dense.opacity[hit]);
+    // Samples lie every (80 − 0.5) / 47 ≈ 1.69 m: at 7.27 m (30% into the face voxel by
+    // interpolation) and at 8.96 m (inside). The depth must lie between them.
+    let spacing = (80.0 - 0.5) / 47.0;
+    let (before, after) = (0.5 + 4.0 * spacing, 0.5 + 5.0 * spacing);
+    assert!(
+        (before..=after + 1e-3).contains(&dense.depth[hit]),
+        "dense depth at 0°: {} (face at 7.5 m)",
+        dense.depth[hit]
+    );
+    // Rays at 90° miss the box and see only empty voxels until they leave the grid.
+    for r in 0..rays.len() {
+        assert!(
+            (dense.depth[r] - skipped.depth[r]).abs() < 0.01,
+            "ray {r}: dense depth {} vs skipping {}",
+            dense.depth[r],
+            skipped.depth[r]
+        );
+        assert!((dense.opacity[r] - skipped.opacity[r]).abs() < 1e-3);
+        for c in 0..channels {
+            let (a, b) = (
+                dense.features[r * channels + c],
+                skipped.features[r * channels + c],
+            );
+            assert!(
+                (a - b).abs() < 1e-2 * (1.0 + a.abs()),
+                "ray {r} channel {c}: {a} vs {b}"
+            );
+        }
+    }
+    assert_eq!(dense.samples_evaluated, dense.samples_dense);
+    assert!(
+        skipped.samples_evaluated * 4 < dense.samples_evaluated,
+        "skipping evaluated {} of {} samples",
+        skipped.samples_evaluated,
+        dense.samples_evaluated
+    );
+}
+
+#[test]
+fn skipping_nothing_reproduces_the_dense_render() {
+    let device = Device::flex();
+    let config = tiny();
+    let model = config.init(&device);
+    let [c, z, y, x] = config.voxel_shape();
+    let voxels = Tensor::<5>::random([1, c, z, y, x], Distribution::Normal(0.0, 1.0), &device);
+    let scene = VoxelScene::new(&model, &config, voxels);
+    let rays = fan(64);
+    let keep_all = SkipOptions {
+        alpha_threshold: -1.0,
+        stop_transmittance: 0.0,
+        segment: 7, // not a divisor of 48: the last segment is padded
+        ..SkipOptions::default()
+    };
+    let grid = OccupancyGrid::build(&scene, &keep_all);
+    let dense = scene.render_dense(&rays);
+    let skipped = scene.render_skipping(&grid, &rays, &keep_all);
+    assert_eq!(skipped.samples_evaluated, dense.samples_dense);
+    for r in 0..rays.len() {
+        assert!((dense.depth[r] - skipped.depth[r]).abs() < 1e-3 * (1.0 + dense.depth[r]));
+        assert!((dense.opacity[r] - skipped.opacity[r]).abs() < 1e-5);
+    }
+    for (a, b) in dense.features.iter().zip(&skipped.features) {
+        assert!((a - b).abs() < 1e-4 * (1.0 + a.abs()), "{a} vs {b}");
+    }
+}
+
+#[test]
+fn skip_options_name_every_bad_field() {
+    let bad = SkipOptions {
+        alpha_threshold: f32::NAN,
+        cell: 0,
+        stop_transmittance: 1.5,
+        segment: 0,
+    };
+    let problems = bad.problems().join("\n");
+    for field in ["alpha_threshold", "cell", "stop_transmittance", "segment"] {
+        assert!(problems.contains(field), "{problems}");
+    }
+    assert!(SkipOptions::default().problems().is_empty());
+}
