@@ -5,11 +5,13 @@
 pub mod config;
 pub mod decoder;
 pub mod encoder;
+pub mod frame_input;
 pub mod latent;
 pub mod model;
 pub mod render;
 pub mod swin;
 pub mod weights;
 pub use config::TokenizerConfig;
+pub use frame_input::{FrameInputs, FrameRays, InputError};
 pub use model::{Encoded, EncoderInput, RayRender, Tokenizer};
 pub use weights::{WeightsError, load_weights, save_weights};
