@@ -8,5 +8,7 @@ pub fn registry() -> Registry {
     bevworld_sensors::register(&mut registry);
     bevworld_sinks::register(&mut registry);
     bevworld_pillarize::register(&mut registry);
+    bevworld_tokenizer::register(&mut registry);
+    bevworld_metrics::register(&mut registry);
     registry
 }

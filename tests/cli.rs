@@ -242,7 +242,7 @@ fn shard_and_overwrite_flags_reach_the_nodes() {
         let metrics = dir.path().join("m.json");
         let mut args = vec![
             "run".to_string(),
-            "configs/graphs/export_features.yaml".into(),
+            "configs/graphs/export_bev_stats.yaml".into(),
             "--set".into(),
             format!("source.data={}", data.display()),
             "--set".into(),
@@ -282,7 +282,7 @@ fn shard_and_overwrite_flags_reach_the_nodes() {
     assert_eq!(run(&["--overwrite"]), (4, 4.0));
     let bad = bevworld(&[
         "run",
-        "configs/graphs/export_features.yaml",
+        "configs/graphs/export_bev_stats.yaml",
         "--shard",
         "2/2",
     ]);
@@ -409,7 +409,7 @@ fn a_killed_export_resumes_to_a_complete_set_without_duplicates() {
     let args = |extra: &[&str]| -> Vec<String> {
         let mut args: Vec<String> = [
             "run",
-            "configs/graphs/export_features.yaml",
+            "configs/graphs/export_bev_stats.yaml",
             "--set",
             &format!("source.data={}", data.display()),
             "--set",

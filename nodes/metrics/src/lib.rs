@@ -5,8 +5,14 @@ pub mod fid;
 pub mod frechet;
 pub mod image;
 pub mod inception;
+pub mod reconstruction_node;
 
 pub use chamfer::{ChamferResult, Roi, chamfer, chamfer_in_roi};
 pub use fid::{FidError, InceptionExtractor, load_inception};
 pub use frechet::{FeatureExtractor, GaussianStats, frechet_distance};
 pub use image::{Planes, psnr, rgb_planes, ssim};
+
+/// Registers this family's node kinds.
+pub fn register(registry: &mut bevworld_graph::Registry) {
+    reconstruction_node::register(registry);
+}

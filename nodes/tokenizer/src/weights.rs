@@ -82,3 +82,18 @@ pub fn load_weights(
         })
     }
 }
+
+/// A short fingerprint of a weights file (FNV-1a, 64 bit, hex), stamped on every product so
+/// that exported features say which weights made them.
+pub fn weights_digest(path: &Path) -> Result<String, WeightsError> {
+    let bytes = std::fs::read(path).map_err(|e| WeightsError::Io {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    for byte in bytes {
+        hash ^= u64::from(byte);
+        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    Ok(format!("{hash:016x}"))
+}

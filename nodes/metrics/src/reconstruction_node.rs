@@ -1,0 +1,179 @@
+//! `reconstruction_metrics`: compares a rendered frame with the frame it came from. Camera
+//! PSNR and SSIM are taken at the rendered size, against the input image resized to it
+//! (triangle filter, as the encoder resizes); the LiDAR Chamfer distance is taken in the ego
+//! frame within an ROI (4D-Occ's by default). Means over frames go into the node's metrics.
+
+use std::path::PathBuf;
+
+use bevworld_graph::{
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+};
+use bevworld_types::{ImageSet, PointCloud, SensorFrame};
+use image::imageops::FilterType;
+use serde::{Deserialize, Serialize};
+
+use crate::chamfer::{Roi, chamfer_in_roi};
+use crate::image::{Planes, psnr, rgb_planes, ssim};
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReconstructionMetricsParams {
+    /// ROI preset for the Chamfer distance: `4docc` or `vidar`.
+    #[serde(default = "default_roi")]
+    pub roi: String,
+    /// Also write one CSV row per frame here.
+    #[serde(default)]
+    pub csv: Option<PathBuf>,
+}
+
+fn default_roi() -> String {
+    "4docc".into()
+}
+
+/// One frame's figures.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameScores {
+    pub frame_token: String,
+    pub psnr_db: f64,
+    pub ssim: f64,
+    pub chamfer_m2: f64,
+}
+
+/// Scores a reconstruction against its input frame.
+pub fn score_frame(
+    frame: &SensorFrame,
+    images: &ImageSet,
+    lidar: &PointCloud,
+    roi: &Roi,
+) -> Result<FrameScores, String> {
+    let (mut psnr_sum, mut ssim_sum, mut count) = (0.0, 0.0, 0usize);
+    for rendered in &images.images {
+        let Some(input) = frame
+            .cameras
+            .iter()
+            .find(|c| c.channel.name() == rendered.name)
+        else {
+            return Err(format!(
+                "rendered image '{}' has no camera of that name in frame {}",
+                rendered.name, frame.frame_token
+            ));
+        };
+        let (w, h) = rendered.image.dimensions();
+        let resized = image::imageops::resize(input.image.as_ref(), w, h, FilterType::Triangle);
+        let (a, b) = (rgb_planes(&resized), rgb_planes(&rendered.image));
+        let planes = |data| Planes {
+            data,
+            channels: 3,
+            height: h as usize,
+            width: w as usize,
+        };
+        let (pa, pb) = (planes(&a), planes(&b));
+        // Identical images have infinite PSNR; cap at 100 dB so means stay finite.
+        psnr_sum += psnr(&pa, &pb, 255.0)?.min(100.0);
+        ssim_sum += ssim(&pa, &pb, 255.0)?;
+        count += 1;
+    }
+    if count == 0 {
+        return Err(format!(
+            "no rendered images for frame {}",
+            frame.frame_token
+        ));
+    }
+    let to_f64 = |points: Vec<[f32; 3]>| -> Vec<[f64; 3]> {
+        points
+            .into_iter()
+            .map(|p| [p[0].into(), p[1].into(), p[2].into()])
+            .collect()
+    };
+    let chamfer = chamfer_in_roi(
+        &to_f64(lidar.ego_points()),
+        &to_f64(frame.lidar.ego_points()),
+        roi,
+    );
+    Ok(FrameScores {
+        frame_token: frame.frame_token.clone(),
+        psnr_db: psnr_sum / count as f64,
+        ssim: ssim_sum / count as f64,
+        chamfer_m2: chamfer.chamfer,
+    })
+}
+
+pub struct ReconstructionMetrics {
+    roi: Roi,
+    csv: Option<PathBuf>,
+    scores: Vec<FrameScores>,
+}
+
+impl Sink for ReconstructionMetrics {
+    fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
+        let frame = inputs.get::<SensorFrame>("frame")?;
+        let images = inputs.get::<ImageSet>("images")?;
+        let lidar = inputs.get::<PointCloud>("lidar")?;
+        let scores = score_frame(frame, images, lidar, &self.roi).map_err(NodeError::item)?;
+        tracing::info!(
+            frame = %scores.frame_token,
+            psnr_db = format!("{:.2}", scores.psnr_db),
+            ssim = format!("{:.3}", scores.ssim),
+            chamfer_m2 = format!("{:.3}", scores.chamfer_m2),
+            "reconstruction"
+        );
+        self.scores.push(scores);
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), NodeError> {
+        let Some(path) = &self.csv else {
+            return Ok(());
+        };
+        let mut text = String::from("frame_token,psnr_db,ssim,chamfer_m2\n");
+        for s in &self.scores {
+            text.push_str(&format!(
+                "{},{:.4},{:.5},{:.5}\n",
+                s.frame_token, s.psnr_db, s.ssim, s.chamfer_m2
+            ));
+        }
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent)
+                .map_err(|e| NodeError::fatal(format!("creating {}: {e}", parent.display())))?;
+        }
+        std::fs::write(path, text)
+            .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))
+    }
+
+    fn report(&self) -> Figures {
+        let mut figures = Figures::new();
+        let n = self.scores.len();
+        figures.insert("frames_scored".into(), n as f64);
+        if n > 0 {
+            let mean =
+                |f: fn(&FrameScores) -> f64| self.scores.iter().map(f).sum::<f64>() / n as f64;
+            figures.insert("psnr_db_mean".into(), mean(|s| s.psnr_db));
+            figures.insert("ssim_mean".into(), mean(|s| s.ssim));
+            figures.insert("chamfer_m2_mean".into(), mean(|s| s.chamfer_m2));
+        }
+        figures
+    }
+}
+
+pub fn register(registry: &mut Registry) {
+    registry.register(
+        KindSpec::sink(
+            "reconstruction_metrics",
+            "camera PSNR/SSIM and LiDAR Chamfer of a rendered frame against its input frame",
+        )
+        .input(PortSpec::new::<SensorFrame>("frame"))
+        .input(PortSpec::new::<ImageSet>("images"))
+        .input(PortSpec::new::<PointCloud>("lidar")),
+        |params: ReconstructionMetricsParams| {
+            let roi = Roi::preset(&params.roi).ok_or_else(|| {
+                ParamError::field("roi", format!("unknown preset '{}'", params.roi))
+                    .with_accepted("4docc, vidar")
+            })?;
+            Ok(Node::Sink(Box::new(ReconstructionMetrics {
+                roi,
+                csv: params.csv,
+                scores: Vec::new(),
+            })))
+        },
+    );
+}

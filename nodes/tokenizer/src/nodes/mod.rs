@@ -1,0 +1,14 @@
+//! The tokenizer's graph nodes: `encode` (frame and pillars to the BEV latent) and `render`
+//! (latent to camera images and a LiDAR sweep).
+
+pub mod encode;
+pub mod loaded_model;
+pub mod render;
+
+pub use loaded_model::{LoadedModel, ModelParams};
+
+/// Registers this family's node kinds.
+pub fn register(registry: &mut bevworld_graph::Registry) {
+    encode::register(registry);
+    render::register(registry);
+}

@@ -1,0 +1,240 @@
+//! The tokenizer's graphs as a user runs them: `reconstruct.yaml` writes inputs,
+//! reconstructions, side-by-side pairs, sweeps and metrics; `export_features.yaml` exports the
+//! latent and the fused feature; bad model params fail before any frame flows, naming the field.
+//! The model is untrained here, so the tests check plumbing and invariants, not quality.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn bevworld(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bevworld"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("bevworld runs")
+}
+
+fn text(output: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    )
+}
+
+/// One synthetic scene of 1 s (2 keyframes) with small cameras and a sparse LiDAR.
+fn synth_small(out: &Path) {
+    let output = bevworld(&[
+        "synth",
+        "--out",
+        out.to_str().expect("utf-8 path"),
+        "--camera-size",
+        "64x36",
+        "--azimuth-step",
+        "2",
+        "--agents",
+        "1",
+        "--seconds",
+        "1",
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+}
+
+fn node<'a>(report: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
+    report["nodes"]
+        .as_array()
+        .expect("nodes")
+        .iter()
+        .find(|n| n["id"] == id)
+        .unwrap_or_else(|| panic!("no node {id} in the metrics"))
+}
+
+fn run_reconstruct(data: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let metrics = out.join("metrics.json");
+    let mut args: Vec<String> = vec![
+        "run".into(),
+        "configs/graphs/reconstruct.yaml".into(),
+        "--no-progress".into(),
+        "--metrics".into(),
+        metrics.display().to_string(),
+        "--set".into(),
+        format!("source.data={}", data.display()),
+        "--set".into(),
+        format!("metrics.csv={}", out.join("metrics.csv").display()),
+    ];
+    for sink in [
+        "inputs",
+        "reconstructions",
+        "pairs",
+        "input_sweep",
+        "rendered_sweep",
+    ] {
+        args.push("--set".into());
+        args.push(format!("{sink}.out={}", out.display()));
+    }
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let output = bevworld(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(output.status.success(), "{}", text(&output));
+    serde_json::from_slice(&std::fs::read(&metrics).expect("metrics file")).expect("json")
+}
+
+fn ply_vertices(path: &Path) -> usize {
+    let bytes = std::fs::read(path).expect("ply");
+    let header = String::from_utf8_lossy(&bytes[..bytes.len().min(512)]).to_string();
+    header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|n| n.trim().parse().ok())
+        .expect("vertex count")
+}
+
+#[test]
+fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth_small(&data);
+    let out = dir.path().join("out");
+    let report = run_reconstruct(&data, &out, &[]);
+
+    let metrics = node(&report, "metrics");
+    assert_eq!(
+        metrics["items_in"].as_u64(),
+        Some(2 * 3),
+        "frame, images, lidar for 2 frames"
+    );
+    let extra = &metrics["extra"];
+    assert_eq!(extra["frames_scored"].as_f64(), Some(2.0));
+    let psnr = extra["psnr_db_mean"].as_f64().expect("psnr");
+    let chamfer = extra["chamfer_m2_mean"].as_f64().expect("chamfer");
+    // Untrained: far from the input, but finite and positive.
+    assert!(psnr.is_finite() && psnr > 3.0 && psnr < 40.0, "psnr {psnr}");
+    assert!(chamfer.is_finite() && chamfer > 0.0, "chamfer {chamfer}");
+    assert_eq!(
+        node(&report, "render")["extra"]["samples_evaluated_fraction"].as_f64(),
+        Some(1.0),
+        "dense rendering evaluates every sample"
+    );
+
+    let frame = out.join("000000");
+    for camera in ["CAM_FRONT", "CAM_BACK_LEFT"] {
+        let input = image::open(frame.join(format!("{camera}.png"))).expect("input png");
+        assert_eq!((input.width(), input.height()), (64, 36));
+        let recon = image::open(frame.join(format!("{camera}_recon.png"))).expect("recon png");
+        assert_eq!(
+            (recon.width(), recon.height()),
+            (112, 64),
+            "the tiny model's size"
+        );
+        let pair = image::open(frame.join(format!("{camera}_input_vs_recon.png"))).expect("pair");
+        assert_eq!((pair.width(), pair.height()), (224, 64));
+    }
+    // One rendered point per input ray.
+    let inputs = ply_vertices(&frame.join("LIDAR_TOP.ply"));
+    assert!(inputs > 1000, "{inputs} input points");
+    assert_eq!(ply_vertices(&frame.join("LIDAR_TOP_recon.ply")), inputs);
+    let csv = std::fs::read_to_string(out.join("metrics.csv")).expect("csv");
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    assert!(csv.starts_with("frame_token,psnr_db,ssim,chamfer_m2"));
+
+    // Empty-space skipping with early stop: fewer samples, same outputs written.
+    let skipped = run_reconstruct(
+        &data,
+        &dir.path().join("skipped"),
+        &["--set", "render.skipping.stop_transmittance=0.0001"],
+    );
+    let fraction = node(&skipped, "render")["extra"]["samples_evaluated_fraction"]
+        .as_f64()
+        .expect("fraction");
+    assert!(fraction > 0.0 && fraction < 1.0, "fraction {fraction}");
+}
+
+#[test]
+fn export_features_writes_the_latent_and_the_fused_feature() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth_small(&data);
+    let out = dir.path().join("features");
+    let output = bevworld(&[
+        "run",
+        "configs/graphs/export_features.yaml",
+        "--no-progress",
+        "--set",
+        &format!("source.data={}", data.display()),
+        "--set",
+        &format!("export.out={}", out.display()),
+        "--set",
+        &format!("export_fused.out={}", out.join("fused").display()),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).expect("index"))
+            .expect("json");
+    let frames = index["frames"].as_array().expect("frames");
+    assert_eq!(frames.len(), 2);
+    assert_eq!(frames[0]["model"], "tokenizer-tiny");
+    assert_eq!(frames[0]["weights_hash"], "untrained");
+    let npy = |folder: &Path| -> Vec<usize> {
+        let file = std::fs::read_dir(folder)
+            .expect("folder")
+            .map(|e| e.expect("entry").path())
+            .find(|p| p.extension().is_some_and(|x| x == "npy"))
+            .expect("an npy file");
+        let (shape, values) =
+            bevworld_sinks::npy::read_npy_f32(&std::fs::read(file).expect("npy")).expect("parses");
+        assert!(values.iter().all(|v| v.is_finite()));
+        shape
+    };
+    assert_eq!(npy(&out), vec![4, 32, 32]);
+    assert_eq!(npy(&out.join("fused")), vec![32, 32, 32]);
+}
+
+#[test]
+fn bad_model_params_fail_before_any_frame_naming_the_field() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let garbage = dir.path().join("garbage.bpk");
+    std::fs::write(&garbage, b"not a burnpack file").expect("write");
+    let cases: Vec<(Vec<String>, Vec<&str>)> = vec![
+        (
+            vec!["encode.weights=/nonexistent/tokenizer.bpk".into()],
+            vec![
+                "encode",
+                "weights",
+                "/nonexistent/tokenizer.bpk",
+                "not found",
+            ],
+        ),
+        (
+            vec![format!("render.weights={}", garbage.display())],
+            vec!["render", "weights", "garbage.bpk"],
+        ),
+        (
+            vec!["encode.model=configs/models/nope.yaml".into()],
+            vec!["encode", "model", "nope.yaml"],
+        ),
+        (
+            vec!["render.skipping.segment=0".into()],
+            vec!["render", "skipping", "segment"],
+        ),
+        (vec!["render.chunk=0".into()], vec!["render", "chunk"]),
+    ];
+    for (sets, expected) in cases {
+        let mut args = vec![
+            "check".to_string(),
+            "configs/graphs/reconstruct.yaml".into(),
+        ];
+        for set in &sets {
+            args.push("--set".into());
+            args.push(set.clone());
+        }
+        let output = bevworld(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(!output.status.success(), "{sets:?} was accepted");
+        let message = text(&output);
+        for word in expected {
+            assert!(
+                message.contains(word),
+                "{sets:?}: '{word}' missing from: {message}"
+            );
+        }
+        assert!(!message.contains("panicked"), "{message}");
+    }
+}
