@@ -1,59 +1,104 @@
-//! Tokenizer latency at the tiny size on the device `BURN_DEVICE` selects (flex by default):
-//! encoder, voxel lift, and the rendering of one full frame (all camera rays of six cameras and
-//! one LiDAR sweep's worth of rays), with parameter counts and the machine's matmul rate in the
-//! same run. The weights are untrained: latency does not depend on their values.
+//! Tokenizer latency, FLOPs and rendering speed against error, on the device `BURN_DEVICE`
+//! selects (flex by default), at the tiny size, on the real nuScenes keyframe:
+//!
+//! - encoder and voxel lift: ms, analytic GFLOP, achieved GFLOP/s and its fraction of the
+//!   machine's matmul rate measured in the same run;
+//! - one full frame rendered (every 1/8-grid camera ray of six cameras and one ray per LiDAR
+//!   point), densely and with empty-space skipping + early stop, with the skipping's error
+//!   against the dense render (LiDAR depth, camera colour).
+//!
+//! `TOKENIZER_WEIGHTS=FILE` loads trained weights; without it the model is untrained, which
+//! leaves latency unchanged but makes the skipping figures unrepresentative (α ≈ 0.5 everywhere).
 //!
 //!   cargo run --release -p bevworld-bench --bin tokenizer
+//!   TOKENIZER_WEIGHTS=weights/tokenizer-tiny.bpk cargo run --release -p bevworld-bench --bin tokenizer
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use bevworld_bench::{markdown_table, percentile, write_results};
-use bevworld_tokenizer::TokenizerConfig;
-use bevworld_tokenizer::model::EncoderInput;
-use bevworld_tokenizer::render::rays::{Rays, sample_depths, sample_positions};
+use bevworld_pillarize::{Limits, Pillarizer};
+use bevworld_sensors::{Dataset, DatasetOptions};
+use bevworld_tokenizer::flops::TokenizerFlops;
+use bevworld_tokenizer::render::{OccupancyGrid, RenderedRays, SkipOptions, VoxelScene};
+use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
+use bevworld_types::PillarGrid;
 use burn::module::Module;
 use burn::prelude::*;
-use burn::tensor::Distribution;
+use glam::DVec3;
 
 /// Median and p99 milliseconds of `runs` calls after one warm-up; `f` must finish its work
 /// (read back a value) so that asynchronous backends are timed fully.
-fn time(runs: usize, mut f: impl FnMut()) -> (f64, f64) {
-    f();
+fn time<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, f64, T) {
+    let mut last = f();
     let mut times: Vec<f64> = (0..runs)
         .map(|_| {
             let started = Instant::now();
-            f();
+            last = f();
             started.elapsed().as_secs_f64() * 1e3
         })
         .collect();
     times.sort_by(f64::total_cmp);
-    (percentile(&times, 0.5), percentile(&times, 0.99))
+    (percentile(&times, 0.5), percentile(&times, 0.99), last)
+}
+
+fn psnr(a: &[f32], b: &[f32]) -> f64 {
+    let mse = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| f64::from(x - y).powi(2))
+        .sum::<f64>()
+        / a.len().max(1) as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (1.0 / mse).log10()
+    }
 }
 
 fn main() {
     let (kind, device) = bevworld_device::from_env().expect("BURN_DEVICE");
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../configs/models/tokenizer-tiny.yaml");
-    let config = TokenizerConfig::from_yaml_file(&path).expect("tiny config");
-    let model = config.init(&device);
-    let [h, w] = config.image_size;
-    let n = config.latent_size();
-    let (cameras, k) = (config.cameras, config.fusion_heights);
-    let pillars = 3000; // a nuScenes sweep on the tiny 128 x 128 grid fills about this many
-    let cells: Vec<i64> = (0..pillars as i64).map(|i| i * 5 % (128 * 128)).collect();
-    let input = || EncoderInput {
-        images: Tensor::random([cameras, 3, h, w], Distribution::Uniform(0.0, 1.0), &device),
-        pillar_points: Tensor::random([pillars, 20, 9], Distribution::Normal(0.0, 1.0), &device),
-        pillar_valid: Tensor::ones([pillars, 20], &device),
-        pillar_cells: Tensor::from_data(TensorData::new(cells.clone(), [pillars]), &device),
-        reference: Tensor::random(
-            [cameras, n * n, k, 2],
-            Distribution::Uniform(-1.0, 1.0),
-            &device,
-        ),
-        reference_valid: Tensor::ones([cameras, n * n, k], &device),
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let config = TokenizerConfig::from_yaml_file(&root.join("configs/models/tokenizer-tiny.yaml"))
+        .expect("tiny config");
+    let weights = std::env::var_os("TOKENIZER_WEIGHTS").map(PathBuf::from);
+    let model = match &weights {
+        Some(path) => load_weights(&config, path, &device).expect("TOKENIZER_WEIGHTS"),
+        None => config.init(&device),
     };
+    let frame = Dataset::open(
+        &root.join("../shared/data/nuscenes-sample"),
+        &DatasetOptions::default(),
+    )
+    .expect("the nuScenes sample in ../shared/data")
+    .read(0)
+    .expect("frame 0");
+    let grid = PillarGrid {
+        pillar_size: 160.0 / config.bev.pillar_grid as f32,
+        ..PillarGrid::default()
+    };
+    let cloud = &frame.lidar;
+    let points: Vec<[f32; 4]> = cloud
+        .points
+        .iter()
+        .map(|p| {
+            let q = cloud.ego_from_lidar.transform_point3(DVec3::new(
+                p.x.into(),
+                p.y.into(),
+                p.z.into(),
+            ));
+            [q.x as f32, q.y as f32, q.z as f32, p.intensity]
+        })
+        .collect();
+    let limits = Limits {
+        max_points_per_pillar: 32,
+        ..Limits::default()
+    };
+    let pillars = Pillarizer::new(grid, limits).run(&points);
+    let mut meta_pillars = pillars.clone();
+    meta_pillars.meta.frame_token = frame.frame_token.clone();
+    let inputs = FrameInputs::new(&config);
+    let flops = TokenizerFlops::of(&config, pillars.len(), limits.max_points_per_pillar);
     let read = |t: Tensor<1>| {
         t.into_data()
             .try_to_vec::<f32>()
@@ -63,95 +108,170 @@ fn main() {
 
     let runs = 10;
     let encoder = time(runs, || {
-        let encoded = model.encode(input());
-        std::hint::black_box(read(encoded.latent.sum().reshape([1])));
+        let input = inputs
+            .encoder_input(&frame, &meta_pillars, &device)
+            .expect("encoder input");
+        let encoded = model.encode(input);
+        std::hint::black_box(read(encoded.latent.clone().sum().reshape([1])));
+        encoded.latent
     });
-    let latent = model.encode(input()).latent;
+    let latent = encoder.2.clone();
     let lift = time(runs, || {
-        std::hint::black_box(read(model.voxels(latent.clone()).sum().reshape([1])));
+        let voxels = model.voxels(latent.clone());
+        std::hint::black_box(read(voxels.clone().sum().reshape([1])));
+        voxels
     });
-    let voxels = model.voxels(latent);
+    let voxels = lift.2.clone();
 
-    // One frame: every 1/8-grid camera ray of six cameras, plus 34,688 LiDAR rays.
-    let stride = config.render.camera_stride;
-    let camera_rays = cameras * (h / stride) * (w / stride);
-    let lidar_rays = 34_688;
+    let rays = inputs.frame_rays(&frame).expect("rays");
+    let camera_rays = rays.camera.len();
+    let lidar_rays = rays.lidar.len();
     let total_rays = camera_rays + lidar_rays;
-    let rays = Rays {
-        origins: vec![[0.0, 0.0, 1.8]; total_rays],
-        directions: (0..total_rays)
-            .map(|i| {
-                let a = i as f32 * 0.001;
-                [a.cos() * 0.99, a.sin() * 0.99, -0.14]
-            })
-            .collect(),
+    let scene = VoxelScene::new(&model, &config, voxels);
+    let rgb_of = |camera: &RenderedRays| -> Vec<f32> {
+        let features = camera.features_tensor(0, camera.rays(), &device);
+        model
+            .camera_rgb(features, rays.cameras, rays.rows, rays.columns)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap_or_default()
     };
-    let depths = sample_depths(
-        config.render.near as f32,
-        config.render.far as f32,
-        config.render.samples,
-    );
-    let placement = config.voxel_placement();
-    let render = time(3, || {
-        let positions = sample_positions(&rays, &depths, &placement, &device);
-        let depth_row =
-            Tensor::<2>::from_data(TensorData::new(depths.clone(), [1, depths.len()]), &device);
-        let out = model.render_rays(voxels.clone(), positions, total_rays, depth_row);
-        let rgb = model.camera_rgb(
-            out.features.narrow(0, 0, camera_rays),
-            cameras,
-            h / stride,
-            w / stride,
-        );
-        std::hint::black_box(read(rgb.sum().reshape([1])));
+    let dense = time(3, || {
+        let camera = scene.render_dense(&rays.camera);
+        let lidar = scene.render_dense(&rays.lidar);
+        (rgb_of(&camera), camera, lidar)
     });
-    let rays_per_s = total_rays as f64 / (render.0 * 1e-3);
+    let options = SkipOptions::default();
+    let skipping = time(3, || {
+        let grid = OccupancyGrid::build(&scene, &options);
+        let camera = scene.render_skipping(&grid, &rays.camera, &options);
+        let lidar = scene.render_skipping(&grid, &rays.lidar, &options);
+        (rgb_of(&camera), camera, lidar, grid.occupied_fraction)
+    });
     let matmul = bevworld_device::matmul_gflops(&device, 512, 5).unwrap_or(f64::NAN);
 
+    let (dense_rgb, dense_camera, dense_lidar) = &dense.2;
+    let (skip_rgb, skip_camera, skip_lidar, occupied) = &skipping.2;
+    let depth_mae = dense_lidar
+        .depth
+        .iter()
+        .zip(&skip_lidar.depth)
+        .map(|(a, b)| f64::from((a - b).abs()))
+        .sum::<f64>()
+        / lidar_rays.max(1) as f64;
+    let colour_psnr = psnr(dense_rgb, skip_rgb);
+    let evaluated = skip_camera.samples_evaluated + skip_lidar.samples_evaluated;
+    let dense_samples = dense_camera.samples_dense + dense_lidar.samples_dense;
+    let fraction = evaluated as f64 / dense_samples as f64;
+
+    let gflops = |flop: f64, ms: f64| flop / (ms * 1e-3) / 1e9;
+    let encoder_flop = flops.encoder();
+    let lift_flop = flops.lift;
+    let dense_flop = flops.render(dense_samples, rays.cameras);
+    let skip_flop = flops.render(evaluated, rays.cameras);
+    let row = |stage: String, t: (f64, f64), flop: f64, extra: String| {
+        let rate = gflops(flop, t.0);
+        vec![
+            stage,
+            format!("{:.1} / {:.1}", t.0, t.1),
+            format!("{:.3}", flop / 1e9),
+            format!("{rate:.1} ({:.0}%)", 100.0 * rate / matmul),
+            extra,
+        ]
+    };
     let rows = vec![
-        vec![
-            "encoder (6 cameras + 3,000 pillars -> 4 x 32 x 32)".into(),
-            format!("{:.1} / {:.1}", encoder.0, encoder.1),
-        ],
-        vec![
-            "voxel lift (latent -> 8 x 16 x 128 x 128)".into(),
-            format!("{:.1} / {:.1}", lift.0, lift.1),
-        ],
-        vec![
+        row(
             format!(
-                "render one frame ({camera_rays} camera + {lidar_rays} LiDAR rays x {} samples, RGB upsampling)",
+                "encoder (6 cameras + {} pillars -> 4 x 32 x 32)",
+                pillars.len()
+            ),
+            (encoder.0, encoder.1),
+            encoder_flop,
+            String::new(),
+        ),
+        row(
+            "voxel lift (latent -> 8 x 16 x 128 x 128)".into(),
+            (lift.0, lift.1),
+            lift_flop,
+            String::new(),
+        ),
+        row(
+            format!(
+                "render, dense ({camera_rays} camera + {lidar_rays} LiDAR rays x {} samples, RGB)",
                 config.render.samples
             ),
-            format!("{:.1} / {:.1}", render.0, render.1),
-        ],
+            (dense.0, dense.1),
+            dense_flop,
+            format!("{:.3} M rays/s", total_rays as f64 / (dense.0 * 1e-3) / 1e6),
+        ),
+        row(
+            format!(
+                "render, skipping (α ≤ {}, {}³ cells, stop at T < {})",
+                options.alpha_threshold, options.cell, options.stop_transmittance
+            ),
+            (skipping.0, skipping.1),
+            skip_flop,
+            format!(
+                "{:.3} M rays/s; {:.1}% of samples; depth MAE {depth_mae:.4} m; colour PSNR vs dense {colour_psnr:.1} dB",
+                total_rays as f64 / (skipping.0 * 1e-3) / 1e6,
+                100.0 * fraction
+            ),
+        ),
     ];
-    let table = markdown_table(&["stage (tiny config)", "ms p50 / p99"], &rows);
+    let table = markdown_table(
+        &[
+            "stage (tiny config)",
+            "ms p50 / p99",
+            "GFLOP",
+            "GFLOP/s (of matmul)",
+            "notes",
+        ],
+        &rows,
+    );
     print!("{table}");
     let parameters = model.num_params();
+    let weights_note = match &weights {
+        Some(path) => format!("trained weights {}", path.display()),
+        None => "untrained weights (α ≈ 0.5 everywhere, so skipping gains come from early stop \
+                 alone; latency does not depend on the weights)"
+            .into(),
+    };
     let notes = format!(
-        "Backend: {} ({device:?}). Parameters: {parameters} ({:.2} M). Rendering: {:.2} M rays/s \
-         without empty-space skipping (not built yet). Matmul rate in the same run: {matmul:.1} \
-         GFLOP/s (512 x 512). Untrained weights; timings do not depend on their values.\n",
+        "Backend: {} ({device:?}). Input: the real nuScenes keyframe. Parameters: {parameters} \
+         ({:.2} M). {weights_note}. Occupied voxels (α > {}): {:.1}%. Matmul rate in the same run: \
+         {matmul:.1} GFLOP/s (512 x 512). FLOPs are analytic (`nodes/tokenizer/src/flops.rs`), \
+         2 per multiply-add.\n",
         kind.name(),
         parameters as f64 / 1e6,
-        rays_per_s / 1e6,
+        options.alpha_threshold,
+        100.0 * occupied,
     );
     print!("{notes}");
     write_results(
         "tokenizer",
-        "Tokenizer latency, tiny config",
+        "Tokenizer latency, FLOPs and rendering with and without skipping, tiny config",
         "cargo run --release -p bevworld-bench --bin tokenizer",
         &table,
         &notes,
         &serde_json::json!({
             "backend": kind.name(),
+            "weights": weights.as_ref().map(|p| p.display().to_string()),
             "parameters": parameters,
+            "pillars": pillars.len(),
             "encoder_ms_p50": encoder.0,
+            "encoder_gflop": encoder_flop / 1e9,
             "lift_ms_p50": lift.0,
-            "render_frame_ms_p50": render.0,
+            "lift_gflop": lift_flop / 1e9,
+            "render_dense_ms_p50": dense.0,
+            "render_dense_gflop": dense_flop / 1e9,
+            "render_skipping_ms_p50": skipping.0,
+            "render_skipping_gflop": skip_flop / 1e9,
+            "skipping_sample_fraction": fraction,
+            "skipping_depth_mae_m": depth_mae,
+            "skipping_colour_psnr_db": colour_psnr,
+            "occupied_fraction": occupied,
             "rays": total_rays,
             "samples_per_ray": config.render.samples,
-            "rays_per_s": rays_per_s,
             "matmul_gflops": matmul,
         }),
     );

@@ -5,6 +5,7 @@
 pub mod config;
 pub mod decoder;
 pub mod encoder;
+pub mod flops;
 pub mod frame_input;
 pub mod latent;
 pub mod model;
