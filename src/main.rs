@@ -71,6 +71,9 @@ enum Command {
     /// Evaluate: Chamfer distance between clouds, forecasting baselines.
     #[command(subcommand)]
     Eval(commands::eval::EvalCommand),
+    /// Tokenizer tools: latent statistics.
+    #[command(subcommand)]
+    Tokenizer(commands::tokenizer::TokenizerCommand),
     /// Show the Burn device that BURN_DEVICE selects and measure its matmul rate.
     Device {
         /// Matrix size for the measurement.
@@ -164,6 +167,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Synth(args) => commands::synth::run(&args),
         Command::Inspect(args) => commands::inspect::run(&args),
         Command::Eval(command) => commands::eval::run(&command),
+        Command::Tokenizer(command) => commands::tokenizer::run(&command),
         Command::Device { size } => {
             let (kind, device) = bevworld_device::from_env()?;
             println!("backend: {} ({device:?})", kind.name());

@@ -238,3 +238,93 @@ fn bad_model_params_fail_before_any_frame_naming_the_field() {
         assert!(!message.contains("panicked"), "{message}");
     }
 }
+
+#[test]
+fn tokenizer_stats_matches_the_latents_it_summarises() {
+    use bevworld_tokenizer::latent::{LatentStatsFile, stats_path_for};
+    use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights, save_weights};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth_small(&data);
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let config_path = root.join("configs/models/tokenizer-tiny.yaml");
+    let config = TokenizerConfig::from_yaml_file(&config_path).expect("config");
+    let device = burn::prelude::Device::flex();
+    let weights = dir.path().join("tiny.bpk");
+    save_weights(&config.init(&device), &weights).expect("save");
+
+    let output = bevworld(&[
+        "tokenizer",
+        "stats",
+        "--config",
+        config_path.to_str().expect("utf-8"),
+        "--weights",
+        weights.to_str().expect("utf-8"),
+        "--data",
+        data.to_str().expect("utf-8"),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let path = stats_path_for(&weights);
+    assert_eq!(path, dir.path().join("tiny.stats.json"));
+    let file = LatentStatsFile::load(&path).expect("stats file");
+    assert_eq!(file.model, "tokenizer-tiny");
+    assert_eq!(file.stats.frames, 2);
+    let digest = bevworld_tokenizer::weights_digest(&weights).expect("digest");
+    file.check_matches("tokenizer-tiny", &digest, &path)
+        .expect("same weights");
+    assert!(file.check_matches("tokenizer-tiny", "0123", &path).is_err());
+
+    // The same latents, encoded here, give the same per-channel means and deviations.
+    let model = load_weights(&config, &weights, &device).expect("load");
+    let inputs = FrameInputs::new(&config);
+    let dataset = bevworld_sensors::Dataset::open(&data, &Default::default()).expect("dataset");
+    let mut values: Vec<Vec<f64>> = vec![Vec::new(); 4];
+    for index in 0..dataset.len() {
+        let frame = dataset.read(index).expect("frame");
+        let mut points = Vec::new();
+        bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
+        let pillars = bevworld_pillarize::Pillarizer::new(inputs.pillar_grid(), Default::default())
+            .run(&points);
+        let input = inputs
+            .encoder_input(&frame, &pillars, &device)
+            .expect("input");
+        let latent = model
+            .encode(input)
+            .latent
+            .into_data()
+            .try_to_vec::<f32>()
+            .expect("latent");
+        for (c, plane) in latent.chunks(32 * 32).enumerate() {
+            values[c].extend(plane.iter().map(|&v| f64::from(v)));
+        }
+    }
+    for c in 0..4 {
+        let n = values[c].len() as f64;
+        let mean = values[c].iter().sum::<f64>() / n;
+        let std = (values[c].iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+        assert!(
+            (file.stats.mean[c] - mean).abs() < 1e-5 * (1.0 + mean.abs()),
+            "channel {c} mean"
+        );
+        assert!(
+            (file.stats.std[c] - std).abs() < 1e-5 * (1.0 + std),
+            "channel {c} std"
+        );
+    }
+
+    let missing = bevworld(&[
+        "tokenizer",
+        "stats",
+        "--weights",
+        "/nonexistent/w.bpk",
+        "--data",
+        data.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(
+        text(&missing).contains("/nonexistent/w.bpk"),
+        "{}",
+        text(&missing)
+    );
+}

@@ -3,3 +3,4 @@
 pub mod eval;
 pub mod inspect;
 pub mod synth;
+pub mod tokenizer;

@@ -22,10 +22,8 @@ use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::flops::TokenizerFlops;
 use bevworld_tokenizer::render::{OccupancyGrid, RenderedRays, SkipOptions, VoxelScene};
 use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
-use bevworld_types::PillarGrid;
 use burn::module::Module;
 use burn::prelude::*;
-use glam::DVec3;
 
 /// Median and p99 milliseconds of `runs` calls after one warm-up; `f` must finish its work
 /// (read back a value) so that asynchronous backends are timed fully.
@@ -73,31 +71,14 @@ fn main() {
     .expect("the nuScenes sample in ../shared/data")
     .read(0)
     .expect("frame 0");
-    let grid = PillarGrid {
-        pillar_size: 160.0 / config.bev.pillar_grid as f32,
-        ..PillarGrid::default()
-    };
-    let cloud = &frame.lidar;
-    let points: Vec<[f32; 4]> = cloud
-        .points
-        .iter()
-        .map(|p| {
-            let q = cloud.ego_from_lidar.transform_point3(DVec3::new(
-                p.x.into(),
-                p.y.into(),
-                p.z.into(),
-            ));
-            [q.x as f32, q.y as f32, q.z as f32, p.intensity]
-        })
-        .collect();
-    let limits = Limits {
-        max_points_per_pillar: 32,
-        ..Limits::default()
-    };
-    let pillars = Pillarizer::new(grid, limits).run(&points);
+    let mut points = Vec::new();
+    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
+    // The graphs' pillarize defaults: 20 points per pillar, as PointPillars.
+    let limits = Limits::default();
+    let inputs = FrameInputs::new(&config);
+    let pillars = Pillarizer::new(inputs.pillar_grid(), limits).run(&points);
     let mut meta_pillars = pillars.clone();
     meta_pillars.meta.frame_token = frame.frame_token.clone();
-    let inputs = FrameInputs::new(&config);
     let flops = TokenizerFlops::of(&config, pillars.len(), limits.max_points_per_pillar);
     let read = |t: Tensor<1>| {
         t.into_data()

@@ -28,3 +28,17 @@ impl Default for Limits {
         }
     }
 }
+
+/// A sweep's points moved into the ego frame, with their intensity: what `Pillarizer::run`
+/// takes. f32 is enough for metres near the ego. `out` is cleared and reused.
+pub fn ego_points_into(cloud: &bevworld_types::PointCloud, out: &mut Vec<[f32; 4]>) {
+    let ego_from_lidar = glam::Affine3A::from_mat3_translation(
+        cloud.ego_from_lidar.matrix3.as_mat3(),
+        cloud.ego_from_lidar.translation.as_vec3(),
+    );
+    out.clear();
+    out.extend(cloud.points.iter().map(|p| {
+        let q = ego_from_lidar.transform_point3(glam::Vec3::new(p.x, p.y, p.z));
+        [q.x, q.y, q.z, p.intensity]
+    }));
+}

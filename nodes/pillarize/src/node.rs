@@ -4,7 +4,6 @@ use bevworld_graph::{
     Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
 };
 use bevworld_types::{FrameMeta, PillarGrid, PillarStats, Pillars, SensorFrame};
-use glam::{Affine3A, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::{Limits, Pillarizer};
@@ -40,17 +39,7 @@ pub struct PillarizeNode {
 impl Task for PillarizeNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
         let frame = inputs.get::<SensorFrame>("frame")?;
-        let cloud = &frame.lidar;
-        // Into the ego frame, in f32: metres near the ego need no f64.
-        let ego_from_lidar = Affine3A::from_mat3_translation(
-            cloud.ego_from_lidar.matrix3.as_mat3(),
-            cloud.ego_from_lidar.translation.as_vec3(),
-        );
-        self.points.clear();
-        self.points.extend(cloud.points.iter().map(|p| {
-            let q = ego_from_lidar.transform_point3(Vec3::new(p.x, p.y, p.z));
-            [q.x, q.y, q.z, p.intensity]
-        }));
+        crate::ego_points_into(&frame.lidar, &mut self.points);
         let mut pillars: Pillars = self.pillarizer.run(&self.points);
         pillars.meta = FrameMeta {
             sample_token: frame.sample_token.clone(),

@@ -7,7 +7,7 @@
 //! the frame the pillars and the latent live in. Cameras fired at other instants go through the
 //! global frame (see `encoder::projection`).
 
-use bevworld_types::{PILLAR_FEATURES, Pillars, Pose, SensorFrame};
+use bevworld_types::{PILLAR_FEATURES, PillarGrid, Pillars, Pose, SensorFrame};
 use burn::prelude::*;
 use glam::DVec3;
 use image::imageops::FilterType;
@@ -92,6 +92,19 @@ impl FrameInputs {
 
     pub fn config(&self) -> &TokenizerConfig {
         &self.config
+    }
+
+    /// The pillar grid the model's LiDAR branch expects, for the pillarize node or a
+    /// `Pillarizer`.
+    pub fn pillar_grid(&self) -> PillarGrid {
+        let bev = &self.config.bev;
+        let f = |r: [f64; 2]| [r[0] as f32, r[1] as f32];
+        PillarGrid {
+            x_range: f(bev.x_range),
+            y_range: f(bev.y_range),
+            z_range: f(bev.z_range),
+            pillar_size: ((bev.x_range[1] - bev.x_range[0]) / bev.pillar_grid.max(1) as f64) as f32,
+        }
     }
 
     fn check_cameras(&self, frame: &SensorFrame) -> Result<(), InputError> {

@@ -17,4 +17,4 @@ pub use config::TokenizerConfig;
 pub use frame_input::{FrameInputs, FrameRays, InputError};
 pub use model::{Encoded, EncoderInput, RayRender, Tokenizer};
 pub use nodes::register;
-pub use weights::{WeightsError, load_weights, save_weights};
+pub use weights::{WeightsError, load_weights, save_weights, weights_digest};

@@ -31,26 +31,14 @@ fn nuscenes_frame() -> SensorFrame {
 
 /// The tiny config's pillar grid: 128 x 128 over [-80, 80) m.
 fn tiny_grid() -> PillarGrid {
-    PillarGrid {
-        pillar_size: 160.0 / 128.0,
-        ..PillarGrid::default()
-    }
+    let grid = FrameInputs::new(&tiny()).pillar_grid();
+    assert_eq!(grid.size(), (128, 128));
+    grid
 }
 
 fn pillarize(frame: &SensorFrame, grid: PillarGrid) -> Pillars {
-    let cloud = &frame.lidar;
-    let points: Vec<[f32; 4]> = cloud
-        .points
-        .iter()
-        .map(|p| {
-            let q = cloud.ego_from_lidar.transform_point3(DVec3::new(
-                p.x.into(),
-                p.y.into(),
-                p.z.into(),
-            ));
-            [q.x as f32, q.y as f32, q.z as f32, p.intensity]
-        })
-        .collect();
+    let mut points = Vec::new();
+    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
     Pillarizer::new(grid, Limits::default()).run(&points)
 }
 

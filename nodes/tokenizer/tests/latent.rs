@@ -85,3 +85,49 @@ fn compression_and_upsampling_shapes() {
     let v = rgb.into_data().try_to_vec::<f32>().unwrap();
     assert!(v.iter().all(|&x| (0.0..=1.0).contains(&x)));
 }
+
+#[test]
+fn stats_files_round_trip_and_refuse_bad_fields_by_name() {
+    use bevworld_tokenizer::latent::{
+        LatentStats, LatentStatsFile, StatsFileError, stats_path_for,
+    };
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = stats_path_for(&dir.path().join("w.bpk"));
+    assert!(path.ends_with("w.stats.json"));
+    assert!(matches!(
+        LatentStatsFile::load(&path),
+        Err(StatsFileError::NotFound { .. })
+    ));
+    let file = LatentStatsFile {
+        model: "tokenizer-tiny".into(),
+        weights_hash: "abc".into(),
+        data: "out/synth".into(),
+        stats: LatentStats {
+            mean: vec![0.5, -1.0],
+            std: vec![2.0, 0.25],
+            frames: 3,
+        },
+    };
+    file.save(&path).expect("save");
+    assert_eq!(LatentStatsFile::load(&path).expect("load"), file);
+
+    let broken = |text: &str| -> String {
+        std::fs::write(&path, text).expect("write");
+        LatentStatsFile::load(&path)
+            .expect_err("refused")
+            .to_string()
+    };
+    let good = serde_json::to_value(&file).expect("json");
+    let mut zero_std = good.clone();
+    zero_std["stats"]["std"][1] = serde_json::json!(0.0);
+    assert!(broken(&zero_std.to_string()).contains("stats.std"));
+    let mut short = good.clone();
+    short["stats"]["mean"] = serde_json::json!([0.5]);
+    assert!(broken(&short.to_string()).contains("stats.std"));
+    let mut wrong_type = good.clone();
+    wrong_type["stats"]["frames"] = serde_json::json!("three");
+    let message = broken(&wrong_type.to_string());
+    assert!(message.contains("stats.frames"), "{message}");
+    assert!(broken("{").contains("w.stats.json"));
+}

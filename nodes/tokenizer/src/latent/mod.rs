@@ -3,6 +3,8 @@
 
 pub mod compress;
 pub mod stats;
+pub mod stats_file;
 
 pub use compress::{LatentCompress, LatentCompressConfig};
 pub use stats::{LatentStats, LatentStatsAccumulator};
+pub use stats_file::{LatentStatsFile, StatsFileError, stats_path_for};
