@@ -6,7 +6,7 @@ use std::process::{Command, Output};
 fn bevworld(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_bevworld"))
         .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
         .output()
         .unwrap()
 }
@@ -39,7 +39,8 @@ fn synth_small(out: &Path, extra: &[&str]) {
 }
 
 fn nuscenes() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/nuscenes-sample")
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .join("../shared/data/nuscenes-sample")
 }
 
 #[test]
@@ -137,8 +138,13 @@ fn check_reports_problems_with_positions_and_exits_2() {
 
 #[test]
 fn check_and_dot_on_the_shipped_graphs() {
-    for graph in
-        std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/graphs")).unwrap()
+    for graph in std::fs::read_dir(
+        std::path::PathBuf::from(
+            std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+        )
+        .join("configs/graphs"),
+    )
+    .unwrap()
     {
         let path = graph.unwrap().path();
         let output = bevworld(&["check", path.to_str().unwrap()]);
@@ -254,7 +260,9 @@ fn shard_and_overwrite_flags_reach_the_nodes() {
         args.extend(extra.iter().map(|s| s.to_string()));
         let output = Command::new(env!("CARGO_BIN_EXE_bevworld"))
             .args(&args)
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .current_dir(
+                std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+            )
             .output()
             .unwrap();
         assert!(output.status.success(), "{}", text(&output));
@@ -323,7 +331,7 @@ fn ctrl_c_drains_and_exits_cleanly() {
             metrics.to_str().unwrap(),
             "--no-progress",
         ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
         .spawn()
         .unwrap();
     std::thread::sleep(std::time::Duration::from_millis(1500));
@@ -427,7 +435,7 @@ fn a_killed_export_resumes_to_a_complete_set_without_duplicates() {
     // Paced at 40 Hz (1.2 s for 48 frames), killed hard after 0.6 s.
     let mut child = Command::new(env!("CARGO_BIN_EXE_bevworld"))
         .args(args(&["--set", "source.pacing.rate_hz=40"]))
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()

@@ -6,13 +6,14 @@ use std::process::{Command, Output};
 fn bevworld(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_bevworld"))
         .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
         .output()
         .unwrap()
 }
 
 fn kitti() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/kitti-odometry-00")
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .join("../shared/data/kitti-odometry-00")
 }
 
 fn json(output: &Output) -> serde_json::Value {
@@ -152,7 +153,10 @@ fn bad_input_is_a_clear_error() {
     assert!(
         String::from_utf8_lossy(&output.stderr).contains("--horizons must be frame counts >= 1")
     );
-    let nuscenes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/nuscenes-sample");
+    let nuscenes = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../shared/data/nuscenes-sample");
     let output = bevworld(&[
         "eval",
         "baselines",

@@ -49,7 +49,10 @@ fn f64s(value: &serde_json::Value) -> Vec<f64> {
 
 #[test]
 fn inspect_matches_an_independent_devkit_projection() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/nuscenes-sample");
+    let root = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../shared/data/nuscenes-sample");
     let out = tempfile::tempdir().unwrap();
     let status = Command::new(env!("CARGO_BIN_EXE_bevworld"))
         .args([

@@ -9,7 +9,7 @@ use std::process::{Command, Output};
 fn bevworld(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_bevworld"))
         .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
         .output()
         .expect("bevworld runs")
 }
@@ -247,7 +247,9 @@ fn tokenizer_stats_matches_the_latents_it_summarises() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
     synth_small(&data);
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = std::path::PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    );
     let config_path = root.join("configs/models/tokenizer-tiny.yaml");
     let config = TokenizerConfig::from_yaml_file(&config_path).expect("config");
     let device = burn::prelude::Device::flex();

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 /// Where results go: `bench/results/`, from any working directory.
 pub fn results_dir() -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("results");
+    let dir = manifest_dir().join("results");
     let _ = std::fs::create_dir_all(&dir);
     dir
 }
@@ -75,4 +75,12 @@ pub fn write_results(
         "results written to {}",
         dir.join(format!("{name}.md")).display()
     );
+}
+
+/// The bench crate's folder: from cargo at run time (so a moved checkout with a reused build
+/// cache still finds its files), else where it was compiled.
+pub fn manifest_dir() -> PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")))
 }

@@ -3,7 +3,6 @@
 //!
 //!   cargo run --release -p bevworld-bench --bin pillarize
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use bevworld_bench::{markdown_table, percentile, plot, results_dir, write_results};
@@ -13,7 +12,7 @@ use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_types::PillarGrid;
 
 fn ego_points(dataset: &str) -> Vec<[f32; 4]> {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    let root = bevworld_bench::manifest_dir()
         .join("../../shared/data")
         .join(dataset);
     let options = DatasetOptions {

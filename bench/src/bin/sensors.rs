@@ -45,7 +45,7 @@ fn registry() -> Registry {
 }
 
 fn shared_data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    bevworld_bench::manifest_dir()
         .join("../../shared/data")
         .join(name)
 }

@@ -56,7 +56,7 @@ fn psnr(a: &[f32], b: &[f32]) -> f64 {
 
 fn main() {
     let (kind, device) = bevworld_device::from_env().expect("BURN_DEVICE");
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let root = bevworld_bench::manifest_dir().join("..");
     let config = TokenizerConfig::from_yaml_file(&root.join("configs/models/tokenizer-tiny.yaml"))
         .expect("tiny config");
     let weights = std::env::var_os("TOKENIZER_WEIGHTS").map(PathBuf::from);

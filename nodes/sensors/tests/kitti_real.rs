@@ -7,7 +7,8 @@ use bevworld_sensors::{Dataset, DatasetOptions, NonFinitePolicy};
 use glam::DVec3;
 
 fn data() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/kitti-odometry-00")
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/kitti-odometry-00")
 }
 
 #[test]

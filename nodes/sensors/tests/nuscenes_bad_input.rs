@@ -7,7 +7,8 @@ use bevworld_sensors::nuscenes::{NuScenes, NuScenesOptions};
 use bevworld_sensors::{NonFinitePolicy, SensorError};
 
 fn data() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nuscenes-sample")
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/nuscenes-sample")
 }
 
 fn copy_dir(from: &Path, to: &Path) {

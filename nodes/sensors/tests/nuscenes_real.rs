@@ -8,7 +8,8 @@ use bevworld_types::CameraChannel;
 use glam::DVec3;
 
 fn data() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nuscenes-sample")
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/nuscenes-sample")
 }
 
 #[test]

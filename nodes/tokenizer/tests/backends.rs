@@ -70,8 +70,10 @@ fn run(
 
 #[test]
 fn flex_and_wgpu_agree_on_the_tiny_tokenizer() {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/models/tokenizer-tiny.yaml");
+    let path = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../configs/models/tokenizer-tiny.yaml");
     let config = TokenizerConfig::from_yaml_file(&path).expect("tiny config");
     let dir = tempfile::tempdir().expect("tempdir");
     let weights = dir.path().join("tiny.bpk");

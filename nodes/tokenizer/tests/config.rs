@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use bevworld_tokenizer::config::{ConfigError, TokenizerConfig};
 
 fn model(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
         .join("../../configs/models")
         .join(name)
 }

@@ -6,8 +6,10 @@ use bevworld_tokenizer::TokenizerConfig;
 use bevworld_tokenizer::flops::{TokenizerFlops, swin_block};
 
 fn config(name: &str) -> TokenizerConfig {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join(format!("../../configs/models/tokenizer-{name}.yaml"));
+    let path = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join(format!("../../configs/models/tokenizer-{name}.yaml"));
     TokenizerConfig::from_yaml_file(&path).expect("config")
 }
 

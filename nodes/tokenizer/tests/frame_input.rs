@@ -15,14 +15,18 @@ use burn::prelude::*;
 use glam::{DVec3, Vec3};
 
 fn tiny() -> TokenizerConfig {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/models/tokenizer-tiny.yaml");
+    let path = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../configs/models/tokenizer-tiny.yaml");
     TokenizerConfig::from_yaml_file(&path).expect("tiny config")
 }
 
 fn nuscenes_frame() -> SensorFrame {
-    let root =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nuscenes-sample");
+    let root = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../../shared/data/nuscenes-sample");
     Dataset::open(&root, &DatasetOptions::default())
         .expect("nuScenes sample")
         .read(0)

@@ -12,8 +12,10 @@ use burn::tensor::Distribution;
 #[test]
 fn tiny_tokenizer_runs_end_to_end() {
     let device = Device::flex();
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/models/tokenizer-tiny.yaml");
+    let path = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../configs/models/tokenizer-tiny.yaml");
     let config = TokenizerConfig::from_yaml_file(&path).expect("tiny config");
     let model = config.init(&device);
     let [h, w] = config.image_size;

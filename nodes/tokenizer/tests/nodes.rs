@@ -19,8 +19,10 @@ fn header() -> Header {
 fn task(kind: &str) -> Box<dyn Task> {
     let mut registry = Registry::new();
     bevworld_tokenizer::register(&mut registry);
-    let model =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/models/tokenizer-tiny.yaml");
+    let model = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../configs/models/tokenizer-tiny.yaml");
     let params = serde_json::json!({"model": model, "weights": "untrained"});
     match registry.get(kind).expect("registered").build(&params) {
         Ok(built) => match built.node {
@@ -32,8 +34,10 @@ fn task(kind: &str) -> Box<dyn Task> {
 }
 
 fn nuscenes_frame() -> SensorFrame {
-    let root =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nuscenes-sample");
+    let root = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../../shared/data/nuscenes-sample");
     Dataset::open(&root, &DatasetOptions::default())
         .expect("nuScenes sample")
         .read(0)

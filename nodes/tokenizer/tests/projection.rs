@@ -12,8 +12,10 @@ use glam::DVec3;
 
 #[test]
 fn fusion_projection_matches_inspect_on_the_real_sample() {
-    let root =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nuscenes-sample");
+    let root = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../../shared/data/nuscenes-sample");
     let frame = Dataset::open(&root, &DatasetOptions::default())
         .expect("nuScenes sample")
         .read(0)

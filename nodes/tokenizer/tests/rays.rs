@@ -13,8 +13,10 @@ use burn::prelude::*;
 use glam::DVec3;
 
 fn nuscenes_frame() -> SensorFrame {
-    let root =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nuscenes-sample");
+    let root = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../../shared/data/nuscenes-sample");
     Dataset::open(&root, &DatasetOptions::default())
         .expect("nuScenes sample")
         .read(0)

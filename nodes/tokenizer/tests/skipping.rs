@@ -12,12 +12,14 @@ use burn::prelude::*;
 use burn::tensor::Distribution;
 
 fn tiny() -> TokenizerConfig {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/models/tokenizer-tiny.yaml");
+    let path = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../configs/models/tokenizer-tiny.yaml");
     TokenizerConfig::from_yaml_file(&path).expect("tiny config")
 }
 
-/// Two feature vectors whose alpha logits under this model are below −10 and above +10,
+/// Two feature vectors whose alpha logits under this model are below −15 and above +10,
 /// found among scaled random candidates (the head is piecewise linear, so large inputs
 /// saturate α one way or the other).
 fn empty_and_occupied(model: &Tokenizer, channels: usize, device: &Device) -> (Vec<f32>, Vec<f32>) {
@@ -27,7 +29,7 @@ fn empty_and_occupied(model: &Tokenizer, channels: usize, device: &Device) -> (V
         Distribution::Normal(0.0, 1.0),
         device,
     )
-    .mul_scalar(30.0);
+    .mul_scalar(50.0);
     let logits = model
         .alpha_logits(features.clone())
         .into_data()
@@ -95,6 +97,7 @@ fn fan(count: usize) -> Rays {
 #[test]
 fn skipping_matches_dense_on_a_box_and_skips_most_samples() {
     let device = Device::flex();
+    device.seed(7);
     let config = tiny();
     let model = config.init(&device);
     let channels = config.decoder.voxel_channels;
@@ -104,7 +107,13 @@ fn skipping_matches_dense_on_a_box_and_skips_most_samples() {
     let rays = fan(360);
 
     let dense = scene.render_dense(&rays);
-    let options = SkipOptions::default();
+    // A threshold well below the default 1e-3: samples that mix empty and occupied features at
+    // the box's faces can have α just under a threshold, and each skipped one shifts the depth
+    // by up to α·t. At 1e-5 that stays under a millimetre per sample.
+    let options = SkipOptions {
+        alpha_threshold: 1e-5,
+        ..SkipOptions::default()
+    };
     let grid = OccupancyGrid::build(&scene, &options);
     assert!(
         grid.occupied_fraction > 0.0 && grid.occupied_fraction < 0.01,
@@ -125,7 +134,8 @@ fn skipping_matches_dense_on_a_box_and_skips_most_samples() {
         "dense depth at 0°: {} (face at 7.5 m)",
         dense.depth[hit]
     );
-    // Rays at 90° miss the box and see only empty voxels until they leave the grid.
+    // Early stop drops at most T < 1e-4 of a ray's weight (≤ 8 mm at 80 m); skipping drops
+    // samples of α ≤ ~1e-5.
     for r in 0..rays.len() {
         assert!(
             (dense.depth[r] - skipped.depth[r]).abs() < 0.01,

@@ -6,8 +6,10 @@ use bevworld_tokenizer::{TokenizerConfig, WeightsError, load_weights, save_weigh
 use burn::prelude::*;
 
 fn tiny() -> TokenizerConfig {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/models/tokenizer-tiny.yaml");
+    let path = PathBuf::from(
+        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
+    )
+    .join("../../configs/models/tokenizer-tiny.yaml");
     TokenizerConfig::from_yaml_file(&path).expect("tiny config")
 }
 

@@ -113,11 +113,17 @@ impl OccupancyGrid {
         let (model, voxels) = (scene.model, &scene.voxels);
         let [_, channels, z, y, x] = voxels.dims();
         let device = voxels.device();
+        // Compare logits with logit(threshold) rather than α with the threshold: a vectorised
+        // sigmoid is accurate in absolute terms only (~1e-6 here), which would make every voxel
+        // look occupied at small thresholds, while the logit is exact.
         let threshold = options.alpha_threshold;
-        let alpha_of = |features: Tensor<3>| -> Vec<f32> {
-            let logits = model.alpha_logits(features);
-            host_vec(burn::tensor::activation::sigmoid(logits))
+        let threshold_logit = if threshold <= 0.0 {
+            f32::NEG_INFINITY
+        } else {
+            (threshold / (1.0 - threshold)).ln()
         };
+        let logits_of =
+            |features: Tensor<3>| -> Vec<f32> { host_vec(model.alpha_logits(features)) };
         // Bound the [cells, C_v] intermediate to about 4 M values.
         let z_chunk = (4 << 20) / (y * x * channels.max(1)).max(1);
         let z_chunk = z_chunk.clamp(1, z.max(1));
@@ -129,10 +135,12 @@ impl OccupancyGrid {
                 .narrow(2, z0, dz)
                 .permute([0, 2, 3, 4, 1])
                 .reshape([1, dz * y * x, channels]);
-            fine.extend(alpha_of(slab).into_iter().map(|a| a > threshold));
+            fine.extend(logits_of(slab).into_iter().map(|s| s > threshold_logit));
         }
         let zero = Tensor::<3>::zeros([1, 1, channels], &device);
-        let outside_occupied = alpha_of(zero).first().is_some_and(|&a| a > threshold);
+        let outside_occupied = logits_of(zero)
+            .first()
+            .is_some_and(|&s| s > threshold_logit);
 
         let cell = options.cell.max(1);
         let coarse = [z.div_ceil(cell), y.div_ceil(cell), x.div_ceil(cell)];
