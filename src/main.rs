@@ -71,6 +71,9 @@ enum Command {
     /// Evaluate: Chamfer distance between clouds, forecasting baselines.
     #[command(subcommand)]
     Eval(commands::eval::EvalCommand),
+    /// Train a model (the tokenizer).
+    #[command(subcommand)]
+    Train(commands::train::TrainCommand),
     /// Tokenizer tools: latent statistics.
     #[command(subcommand)]
     Tokenizer(commands::tokenizer::TokenizerCommand),
@@ -168,6 +171,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Inspect(args) => commands::inspect::run(&args),
         Command::Eval(command) => commands::eval::run(&command),
         Command::Tokenizer(command) => commands::tokenizer::run(&command),
+        Command::Train(command) => commands::train::run(&command),
         Command::Device { size } => {
             let (kind, device) = bevworld_device::from_env()?;
             println!("backend: {} ({device:?})", kind.name());

@@ -4,3 +4,4 @@ pub mod eval;
 pub mod inspect;
 pub mod synth;
 pub mod tokenizer;
+pub mod train;

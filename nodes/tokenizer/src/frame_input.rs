@@ -53,6 +53,56 @@ pub enum InputError {
     },
 }
 
+/// `EncoderInput` as host arrays (see `FrameInputs::encoder_arrays`).
+#[derive(Clone, Debug)]
+pub struct EncoderArrays {
+    /// `[N_c, 3, H, W]` in [0, 1].
+    pub images: Vec<f32>,
+    pub image_shape: [usize; 4],
+    pub pillar_slots: usize,
+    pub pillar_points: Vec<f32>,
+    pub pillar_valid: Vec<f32>,
+    pub pillar_cells: Vec<i64>,
+    pub reference: Vec<f32>,
+    pub reference_valid: Vec<f32>,
+    /// `[N_c, Q, K]`.
+    pub reference_shape: [usize; 3],
+}
+
+impl EncoderArrays {
+    pub fn to_input(&self, device: &Device) -> EncoderInput {
+        let count = self.pillar_cells.len();
+        let slots = self.pillar_slots;
+        let [cameras, q, k] = self.reference_shape;
+        EncoderInput {
+            images: Tensor::from_data(
+                TensorData::new(self.images.clone(), self.image_shape),
+                device,
+            ),
+            pillar_points: Tensor::from_data(
+                TensorData::new(self.pillar_points.clone(), [count, slots, PILLAR_FEATURES]),
+                device,
+            ),
+            pillar_valid: Tensor::from_data(
+                TensorData::new(self.pillar_valid.clone(), [count, slots]),
+                device,
+            ),
+            pillar_cells: Tensor::from_data(
+                TensorData::new(self.pillar_cells.clone(), [count]),
+                device,
+            ),
+            reference: Tensor::from_data(
+                TensorData::new(self.reference.clone(), [cameras, q, k, 2]),
+                device,
+            ),
+            reference_valid: Tensor::from_data(
+                TensorData::new(self.reference_valid.clone(), [cameras, q, k]),
+                device,
+            ),
+        }
+    }
+}
+
 /// Config-derived geometry, computed once and reused for every frame.
 #[derive(Clone, Debug)]
 pub struct FrameInputs {
@@ -138,18 +188,22 @@ impl FrameInputs {
         pillars: &Pillars,
         device: &Device,
     ) -> Result<EncoderInput, InputError> {
+        Ok(self.encoder_arrays(frame, pillars)?.to_input(device))
+    }
+
+    /// The encoder's inputs as host arrays, to keep many frames ready for training without
+    /// holding device memory.
+    pub fn encoder_arrays(
+        &self,
+        frame: &SensorFrame,
+        pillars: &Pillars,
+    ) -> Result<EncoderArrays, InputError> {
         let [h, w] = self.config.image_size;
         let cameras = frame.cameras.len();
-        let images = Tensor::<4>::from_data(
-            TensorData::new(self.camera_planes(frame)?, [cameras, 3, h, w]),
-            device,
-        );
+        let images = self.camera_planes(frame)?;
         let (points, valid, cells) = self.pillar_arrays(frame, pillars)?;
-        let count = cells.len();
-        let slots = pillars.max_points_per_pillar.max(1);
-
-        let q = self.reference_points.len() / self.config.fusion_heights.max(1);
         let k = self.config.fusion_heights;
+        let q = self.reference_points.len() / k.max(1);
         let mut reference: Vec<f32> = Vec::with_capacity(cameras * q * k * 2);
         let mut reference_valid = Vec::with_capacity(cameras * q * k);
         for fusion_camera in self.fusion_cameras(frame) {
@@ -157,19 +211,16 @@ impl FrameInputs {
             reference.extend(hits.normalized.iter().flatten());
             reference_valid.extend(hits.valid);
         }
-        Ok(EncoderInput {
+        Ok(EncoderArrays {
             images,
-            pillar_points: Tensor::from_data(
-                TensorData::new(points, [count, slots, PILLAR_FEATURES]),
-                device,
-            ),
-            pillar_valid: Tensor::from_data(TensorData::new(valid, [count, slots]), device),
-            pillar_cells: Tensor::from_data(TensorData::new(cells, [count]), device),
-            reference: Tensor::from_data(TensorData::new(reference, [cameras, q, k, 2]), device),
-            reference_valid: Tensor::from_data(
-                TensorData::new(reference_valid, [cameras, q, k]),
-                device,
-            ),
+            image_shape: [cameras, 3, h, w],
+            pillar_slots: pillars.max_points_per_pillar.max(1),
+            pillar_points: points,
+            pillar_valid: valid,
+            pillar_cells: cells,
+            reference,
+            reference_valid,
+            reference_shape: [cameras, q, k],
         })
     }
 

@@ -1,0 +1,179 @@
+//! The training config (`configs/models/train-tokenizer-*.yaml`): which model, the optimiser and
+//! its schedule, the rays per step, the loss weights, checkpointing and validation, and the
+//! synthetic datasets by seed range. Every problem is reported at once, naming its field.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::{ConfigError, TokenizerConfig};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimizerConfig {
+    pub lr: f64,
+    pub beta_1: f64,
+    pub beta_2: f64,
+    pub epsilon: f64,
+    pub weight_decay: f64,
+    pub warmup_steps: usize,
+    /// The cosine decay ends at `lr · final_lr_fraction`.
+    pub final_lr_fraction: f64,
+    /// Clip the gradients' global norm to this.
+    pub grad_clip_norm: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RayConfig {
+    /// Cameras rendered whole per step (their 1/8-grid rays, upsampled to RGB).
+    pub cameras_per_step: usize,
+    /// LiDAR rays drawn at random per step.
+    pub lidar_rays: usize,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LossWeights {
+    /// L1 between rendered and input RGB, in [0, 1].
+    pub rgb_l1: f64,
+    /// L1 between rendered depth and LiDAR range, in metres.
+    pub lidar_l1: f64,
+}
+
+/// A synthetic dataset: `scenes` scenes from seed `seed` on (scene k uses seed + k), made with
+/// `bevworld synth` if `dir` does not exist yet.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SynthSet {
+    pub dir: PathBuf,
+    pub seed: u64,
+    pub scenes: usize,
+    pub seconds: f64,
+    pub camera_size: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    pub train: SynthSet,
+    pub val: SynthSet,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// The model config, relative to this file.
+    pub model: PathBuf,
+    pub steps: usize,
+    pub seed: u64,
+    pub optimizer: OptimizerConfig,
+    pub rays: RayConfig,
+    pub loss: LossWeights,
+    pub checkpoint_every: usize,
+    pub keep_checkpoints: usize,
+    pub validate_every: usize,
+    /// Validation frames evaluated each time (the first ones of the validation set).
+    pub validation_frames: usize,
+    pub data: DataConfig,
+}
+
+impl TrainConfig {
+    /// Reads a training config and the model config it names.
+    pub fn from_yaml_file(path: &Path) -> Result<(Self, TokenizerConfig), ConfigError> {
+        let shown = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: shown.clone(),
+            message: e.to_string(),
+        })?;
+        let mut config: Self = serde_saphyr::from_str(&text).map_err(|e| ConfigError::Read {
+            path: shown.clone(),
+            message: e.to_string(),
+        })?;
+        let problems = config.problems();
+        if !problems.is_empty() {
+            return Err(ConfigError::Invalid {
+                path: shown,
+                problems,
+            });
+        }
+        config.model = path.parent().unwrap_or(Path::new(".")).join(&config.model);
+        let model = TokenizerConfig::from_yaml_file(&config.model)?;
+        Ok((config, model))
+    }
+
+    /// Every inconsistency, one line each, naming the field.
+    pub fn problems(&self) -> Vec<String> {
+        let mut problems = Vec::new();
+        let o = &self.optimizer;
+        let mut positive = |name: &str, value: f64| {
+            if !(value.is_finite() && value > 0.0) {
+                problems.push(format!("{name}: {value} (accepted: a finite number > 0)"));
+            }
+        };
+        positive("optimizer.lr", o.lr);
+        positive("optimizer.epsilon", o.epsilon);
+        positive("optimizer.grad_clip_norm", o.grad_clip_norm);
+        for (name, value) in [
+            ("optimizer.beta_1", o.beta_1),
+            ("optimizer.beta_2", o.beta_2),
+        ] {
+            if !(0.0..1.0).contains(&value) {
+                problems.push(format!("{name}: {value} (accepted: [0, 1))"));
+            }
+        }
+        if !(o.weight_decay >= 0.0 && o.weight_decay.is_finite()) {
+            problems.push(format!(
+                "optimizer.weight_decay: {} (accepted: >= 0)",
+                o.weight_decay
+            ));
+        }
+        if !(0.0..=1.0).contains(&o.final_lr_fraction) {
+            problems.push(format!(
+                "optimizer.final_lr_fraction: {} (accepted: [0, 1])",
+                o.final_lr_fraction
+            ));
+        }
+        for (name, value) in [
+            ("steps", self.steps),
+            ("rays.cameras_per_step", self.rays.cameras_per_step),
+            ("rays.lidar_rays", self.rays.lidar_rays),
+            ("checkpoint_every", self.checkpoint_every),
+            ("keep_checkpoints", self.keep_checkpoints),
+            ("validate_every", self.validate_every),
+            ("validation_frames", self.validation_frames),
+        ] {
+            if value == 0 {
+                problems.push(format!("{name}: 0 (accepted: an integer >= 1)"));
+            }
+        }
+        for (name, value) in [
+            ("loss.rgb_l1", self.loss.rgb_l1),
+            ("loss.lidar_l1", self.loss.lidar_l1),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                problems.push(format!("{name}: {value} (accepted: a finite number >= 0)"));
+            }
+        }
+        let (t, v) = (&self.data.train, &self.data.val);
+        for (name, set) in [("data.train", t), ("data.val", v)] {
+            if set.scenes == 0 || !(set.seconds > 0.0) {
+                problems.push(format!("{name}: needs scenes >= 1 and seconds > 0"));
+            }
+        }
+        let overlap = t.seed < v.seed + v.scenes as u64 && v.seed < t.seed + t.scenes as u64;
+        if overlap {
+            problems.push(format!(
+                "data.val.seed: seeds {}..{} overlap the training seeds {}..{} (validation scenes must be held out)",
+                v.seed,
+                v.seed + v.scenes as u64,
+                t.seed,
+                t.seed + t.scenes as u64
+            ));
+        }
+        if t.dir == v.dir {
+            problems.push("data.val.dir: the same folder as data.train.dir".into());
+        }
+        problems
+    }
+}

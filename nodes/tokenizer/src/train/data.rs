@@ -1,0 +1,125 @@
+//! Frames prepared for training and validation: everything a step needs, as host arrays, so
+//! that a step never decodes images or pillarises. A synthetic set named in the config is
+//! generated first when its folder does not exist.
+
+use std::path::Path;
+
+use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
+use bevworld_sensors::synth::SynthConfig;
+use bevworld_sensors::{Dataset, DatasetOptions};
+
+use crate::frame_input::{EncoderArrays, FrameInputs, FrameRays, InputError};
+use crate::render::rays::Rays;
+use crate::train::config::SynthSet;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("dataset {path}: {message}")]
+    Dataset { path: String, message: String },
+    #[error("dataset {path}, frame {index}: {source}")]
+    Frame {
+        path: String,
+        index: usize,
+        source: InputError,
+    },
+}
+
+/// One frame, ready for a step.
+#[derive(Clone, Debug)]
+pub struct TrainingFrame {
+    pub token: String,
+    pub encoder: EncoderArrays,
+    pub rays: FrameRays,
+    /// LiDAR rays whose range lies inside the rendered `[near, far]`, and those ranges.
+    pub lidar: Rays,
+    pub lidar_ranges: Vec<f32>,
+    /// The sweep in the ego frame, for Chamfer.
+    pub lidar_points: Vec<[f32; 3]>,
+}
+
+/// Makes `set` with the synthetic world unless its folder exists.
+pub fn ensure_synthetic(set: &SynthSet) -> Result<(), DataError> {
+    if set.dir.exists() {
+        return Ok(());
+    }
+    let error = |message: String| DataError::Dataset {
+        path: set.dir.display().to_string(),
+        message,
+    };
+    let (w, h) = set
+        .camera_size
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+        .ok_or_else(|| error(format!("camera_size '{}' is not WxH", set.camera_size)))?;
+    let config = SynthConfig {
+        seed: set.seed,
+        scenes: set.scenes,
+        seconds: set.seconds,
+        camera_width: w,
+        camera_height: h,
+        ..Default::default()
+    };
+    // Generate beside the target and rename, so an interrupted run leaves nothing to trust.
+    let staging = set.dir.with_extension("partial");
+    let _ = std::fs::remove_dir_all(&staging);
+    bevworld_sensors::synth::generate(&staging, &config, |_, _| {})
+        .map_err(|e| error(e.to_string()))?;
+    std::fs::rename(&staging, &set.dir).map_err(|e| error(e.to_string()))
+}
+
+/// Prepares up to `limit` keyframes of the dataset at `dir`.
+pub fn load_frames(
+    dir: &Path,
+    inputs: &FrameInputs,
+    limit: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<TrainingFrame>, DataError> {
+    let shown = dir.display().to_string();
+    let dataset =
+        Dataset::open(dir, &DatasetOptions::default()).map_err(|e| DataError::Dataset {
+            path: shown.clone(),
+            message: e.to_string(),
+        })?;
+    let count = dataset.len().min(limit);
+    if count == 0 {
+        return Err(DataError::Dataset {
+            path: shown,
+            message: "holds no frames".into(),
+        });
+    }
+    let render = &inputs.config().render;
+    let (near, far) = (render.near as f32, render.far as f32);
+    let mut pillarizer = Pillarizer::new(inputs.pillar_grid(), Limits::default());
+    let mut points = Vec::new();
+    let mut frames = Vec::with_capacity(count);
+    for index in 0..count {
+        let frame = dataset.read(index).map_err(|e| DataError::Dataset {
+            path: shown.clone(),
+            message: format!("frame {index}: {e}"),
+        })?;
+        ego_points_into(&frame.lidar, &mut points);
+        let pillars = pillarizer.run(&points);
+        let frame_error = |source| DataError::Frame {
+            path: shown.clone(),
+            index,
+            source,
+        };
+        let encoder = inputs
+            .encoder_arrays(&frame, &pillars)
+            .map_err(frame_error)?;
+        let rays = inputs.frame_rays(&frame).map_err(frame_error)?;
+        let inside: Vec<usize> = (0..rays.lidar.len())
+            .filter(|&i| (near..=far).contains(&rays.lidar_ranges[i]))
+            .collect();
+        frames.push(TrainingFrame {
+            token: frame.frame_token.clone(),
+            encoder,
+            lidar: rays.lidar.subset(&inside),
+            lidar_ranges: inside.iter().map(|&i| rays.lidar_ranges[i]).collect(),
+            lidar_points: frame.lidar.ego_points(),
+            rays,
+        });
+        progress(index + 1, count);
+    }
+    Ok(frames)
+}

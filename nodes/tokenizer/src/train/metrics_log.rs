@@ -1,0 +1,78 @@
+//! `RUN/metrics.csv`: one row per logged training step and per validation, appended and
+//! flushed as the run goes, so that a crashed run keeps its curve. Columns that do not apply
+//! to a row are empty.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+pub const HEADER: &str =
+    "step,phase,lr,loss,loss_rgb,loss_lidar,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s";
+
+pub struct MetricsLog {
+    path: PathBuf,
+}
+
+/// One row; `None` fields are written empty.
+#[derive(Clone, Debug, Default)]
+pub struct Row {
+    pub step: usize,
+    pub phase: &'static str,
+    pub lr: Option<f64>,
+    pub loss: Option<f64>,
+    pub loss_rgb: Option<f64>,
+    pub loss_lidar: Option<f64>,
+    pub grad_norm: Option<f64>,
+    pub psnr_db: Option<f64>,
+    pub ssim: Option<f64>,
+    pub chamfer_m2: Option<f64>,
+    pub elapsed_s: f64,
+}
+
+impl MetricsLog {
+    /// Opens the log, writing the header if the file is new. On resume, rows after `step` (a
+    /// crashed run's steps beyond its last checkpoint) are dropped, so the curve has no
+    /// duplicates.
+    pub fn open(run: &Path, resume_step: Option<usize>) -> std::io::Result<Self> {
+        let path = run.join("metrics.csv");
+        let kept = match (resume_step, std::fs::read_to_string(&path)) {
+            (Some(step), Ok(text)) => text
+                .lines()
+                .skip(1)
+                .filter(|line| {
+                    line.split(',')
+                        .next()
+                        .and_then(|s| s.parse::<usize>().ok())
+                        .is_some_and(|s| s <= step)
+                })
+                .map(|l| format!("{l}\n"))
+                .collect::<String>(),
+            _ => String::new(),
+        };
+        std::fs::write(&path, format!("{HEADER}\n{kept}"))?;
+        Ok(Self { path })
+    }
+
+    pub fn append(&mut self, row: &Row) -> std::io::Result<()> {
+        let f = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
+        let line = format!(
+            "{},{},{},{},{},{},{},{},{},{},{:.1}\n",
+            row.step,
+            row.phase,
+            f(row.lr),
+            f(row.loss),
+            f(row.loss_rgb),
+            f(row.loss_lidar),
+            f(row.grad_norm),
+            f(row.psnr_db),
+            f(row.ssim),
+            f(row.chamfer_m2),
+            row.elapsed_s
+        );
+        let mut file = std::fs::OpenOptions::new().append(true).open(&self.path)?;
+        file.write_all(line.as_bytes())
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}

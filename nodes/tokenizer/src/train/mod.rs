@@ -1,0 +1,15 @@
+//! Training the tokenizer: configs, prepared frames, losses, the optimiser loop with global-norm
+//! clipping, atomic checkpoints that resume exactly, validation, and the run's metrics log.
+
+pub mod checkpoint;
+pub mod clip;
+pub mod config;
+pub mod data;
+pub mod losses;
+pub mod metrics_log;
+pub mod rng;
+pub mod schedule;
+pub mod trainer;
+
+pub use config::TrainConfig;
+pub use trainer::{StepReport, TrainError, Trainer, ValidationReport};

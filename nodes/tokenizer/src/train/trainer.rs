@@ -1,0 +1,371 @@
+//! The training loop of one tokenizer: a step draws a frame, renders the step's rays (whole
+//! cameras for the RGB upsampler, a random subset of LiDAR rays), takes the L1 losses, clips
+//! the global gradient norm and applies AdamW at the scheduled rate.
+//!
+//! A step whose loss or gradient norm is not finite is refused before any parameter changes,
+//! with an error naming the step and the term; the last checkpoint stays the last good one.
+
+use std::path::{Path, PathBuf};
+
+use bevworld_metrics::{Planes, Roi, chamfer_in_roi, psnr, ssim};
+use burn::module::Module;
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::prelude::*;
+
+use crate::config::TokenizerConfig;
+use crate::model::Tokenizer;
+use crate::render::VoxelScene;
+use crate::render::rays::{VoxelPlacement, points_from_depths, sample_depths, sample_positions};
+use crate::train::checkpoint::{self, CheckpointError, CheckpointState};
+use crate::train::clip::clip_global_norm;
+use crate::train::config::TrainConfig;
+use crate::train::data::TrainingFrame;
+use crate::train::losses::l1;
+use crate::train::rng::SplitMix64;
+use crate::train::schedule::learning_rate;
+use crate::weights::{WeightsError, load_weights, save_weights};
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(
+        "step {step}: the {what} is {value}; the step was not applied and the last checkpoint is the last good state (lower optimizer.lr or optimizer.grad_clip_norm)"
+    )]
+    NonFinite {
+        step: usize,
+        what: &'static str,
+        value: f64,
+    },
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Weights(#[from] WeightsError),
+    #[error("{path}: {message}")]
+    Io { path: PathBuf, message: String },
+    #[error("no training frames")]
+    NoFrames,
+}
+
+/// What one step did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepReport {
+    /// Steps completed after this one.
+    pub step: usize,
+    pub lr: f64,
+    pub loss: f64,
+    pub loss_rgb: f64,
+    pub loss_lidar: f64,
+    /// Before clipping.
+    pub grad_norm: f64,
+}
+
+/// Reconstruction quality on held-out frames.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ValidationReport {
+    pub frames: usize,
+    /// Mean over cameras and frames, images in [0, 1] at the model's size.
+    pub psnr_db: f64,
+    pub ssim: f64,
+    /// Mean over frames, 4D-Occ ROI, rendered depth along the real rays.
+    pub chamfer_m2: f64,
+}
+
+pub struct Trainer {
+    pub config: TrainConfig,
+    pub model_config: TokenizerConfig,
+    model: Tokenizer,
+    optimizer: burn::optim::ModuleOptimizer,
+    /// The autodiff device; validation runs on its inner device.
+    device: Device,
+    rng: SplitMix64,
+    step: usize,
+    train: Vec<TrainingFrame>,
+    val: Vec<TrainingFrame>,
+    depths: Vec<f32>,
+    placement: VoxelPlacement,
+}
+
+fn scalar(tensor: Tensor<1>) -> f64 {
+    let value: f32 = tensor.into_scalar();
+    f64::from(value)
+}
+
+impl Trainer {
+    fn optimizer(config: &TrainConfig) -> burn::optim::ModuleOptimizer {
+        let o = &config.optimizer;
+        AdamWConfig::new()
+            .with_beta_1(o.beta_1 as f32)
+            .with_beta_2(o.beta_2 as f32)
+            .with_epsilon(o.epsilon as f32)
+            .with_weight_decay(o.weight_decay as f32)
+            .init()
+    }
+
+    /// A fresh run: the model initialised from `config.seed`.
+    pub fn new(
+        config: TrainConfig,
+        model_config: TokenizerConfig,
+        device: &Device,
+        train: Vec<TrainingFrame>,
+        val: Vec<TrainingFrame>,
+    ) -> Result<Self, TrainError> {
+        if train.is_empty() {
+            return Err(TrainError::NoFrames);
+        }
+        let device = device.clone().autodiff();
+        device.seed(config.seed);
+        let model = model_config.init(&device);
+        Ok(Self {
+            optimizer: Self::optimizer(&config),
+            rng: SplitMix64::new(config.seed ^ 0x5eed_0f_da7a),
+            step: 0,
+            depths: sample_depths(
+                model_config.render.near as f32,
+                model_config.render.far as f32,
+                model_config.render.samples,
+            ),
+            placement: model_config.voxel_placement(),
+            config,
+            model_config,
+            model,
+            device,
+            train,
+            val,
+        })
+    }
+
+    /// Continues the run in `run` from its newest checkpoint: parameters, optimiser moments,
+    /// step and RNG state, so the continuation equals an uninterrupted run.
+    pub fn resume(mut self, run: &Path) -> Result<Self, TrainError> {
+        let (files, state) = checkpoint::latest(run)?;
+        self.model = load_weights(&self.model_config, &files.model(), &self.device)?;
+        self.optimizer = Self::optimizer(&self.config)
+            .load(files.optimizer())
+            .map_err(|e| checkpoint::io_error(&files.optimizer(), format!("{e:?}")))?;
+        self.step = state.step;
+        self.rng = SplitMix64 {
+            state: state.rng_state,
+        };
+        Ok(self)
+    }
+
+    pub fn step(&self) -> usize {
+        self.step
+    }
+
+    pub fn model(&self) -> &Tokenizer {
+        &self.model
+    }
+
+    pub fn is_done(&self) -> bool {
+        self.step >= self.config.steps
+    }
+
+    /// The loss of one drawn frame and ray set, and its parts.
+    fn losses(&mut self) -> (Tensor<1>, Tensor<1>, Tensor<1>) {
+        let device = self.device.clone();
+        let frame = &self.train[self.rng.below(self.train.len())];
+        let latent = self.model.encode(frame.encoder.to_input(&device)).latent;
+        let voxels = self.model.voxels(latent);
+        let depth_row = Tensor::<2>::from_data(
+            TensorData::new(self.depths.clone(), [1, self.depths.len()]),
+            &device,
+        );
+
+        // Whole cameras: the upsampler is a CNN and needs each camera's full ray grid.
+        let rays = &frame.rays;
+        let per_camera = rays.rows * rays.columns;
+        let cameras = self
+            .rng
+            .choose(rays.cameras, self.config.rays.cameras_per_step);
+        let indices: Vec<usize> = cameras
+            .iter()
+            .flat_map(|&c| c * per_camera..(c + 1) * per_camera)
+            .collect();
+        let camera_rays = rays.camera.subset(&indices);
+        let positions = sample_positions(&camera_rays, &self.depths, &self.placement, &device);
+        let rendered = self.model.render_rays(
+            voxels.clone(),
+            positions,
+            camera_rays.len(),
+            depth_row.clone(),
+        );
+        let rgb = self
+            .model
+            .camera_rgb(rendered.features, cameras.len(), rays.rows, rays.columns);
+        let [_, _, h, w] = frame.encoder.image_shape;
+        let plane = 3 * h * w;
+        let target: Vec<f32> = cameras
+            .iter()
+            .flat_map(|&c| {
+                frame.encoder.images[c * plane..(c + 1) * plane]
+                    .iter()
+                    .copied()
+            })
+            .collect();
+        let target =
+            Tensor::<4>::from_data(TensorData::new(target, [cameras.len(), 3, h, w]), &device);
+        let loss_rgb = l1(rgb, target);
+
+        let chosen = self
+            .rng
+            .choose(frame.lidar.len(), self.config.rays.lidar_rays);
+        let loss_lidar = if chosen.is_empty() {
+            Tensor::<1>::zeros([1], &device)
+        } else {
+            let lidar_rays = frame.lidar.subset(&chosen);
+            let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
+            let positions = sample_positions(&lidar_rays, &self.depths, &self.placement, &device);
+            let rendered = self
+                .model
+                .render_rays(voxels, positions, lidar_rays.len(), depth_row);
+            let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), &device);
+            l1(rendered.depth, target)
+        };
+        let loss = loss_rgb.clone().mul_scalar(self.config.loss.rgb_l1)
+            + loss_lidar.clone().mul_scalar(self.config.loss.lidar_l1);
+        (loss, loss_rgb, loss_lidar)
+    }
+
+    /// One optimiser step.
+    pub fn train_step(&mut self) -> Result<StepReport, TrainError> {
+        let (loss, loss_rgb, loss_lidar) = self.losses();
+        let (value, rgb, lidar) = (
+            scalar(loss.clone()),
+            scalar(loss_rgb.detach()),
+            scalar(loss_lidar.detach()),
+        );
+        if !value.is_finite() {
+            let what = if !rgb.is_finite() {
+                "RGB loss"
+            } else {
+                "LiDAR loss"
+            };
+            return Err(TrainError::NonFinite {
+                step: self.step + 1,
+                what,
+                value,
+            });
+        }
+        let mut grads = GradientsParams::from_grads(loss.backward(), &self.model);
+        let grad_norm = clip_global_norm(
+            &self.model,
+            &mut grads,
+            self.config.optimizer.grad_clip_norm,
+        );
+        if !grad_norm.is_finite() {
+            return Err(TrainError::NonFinite {
+                step: self.step + 1,
+                what: "gradient norm",
+                value: grad_norm,
+            });
+        }
+        let o = &self.config.optimizer;
+        let lr = learning_rate(
+            o.lr,
+            o.warmup_steps,
+            self.config.steps,
+            o.final_lr_fraction,
+            self.step,
+        );
+        self.model = self.optimizer.step(lr, self.model.clone(), grads);
+        self.step += 1;
+        Ok(StepReport {
+            step: self.step,
+            lr,
+            loss: value,
+            loss_rgb: rgb,
+            loss_lidar: lidar,
+            grad_norm,
+        })
+    }
+
+    /// PSNR, SSIM and Chamfer on the first `validation_frames` held-out frames, rendering every
+    /// camera ray and every in-range LiDAR ray.
+    pub fn validate(&self) -> ValidationReport {
+        let model = self.model.valid();
+        let device = self.device.clone().inner();
+        let frames: Vec<&TrainingFrame> = self
+            .val
+            .iter()
+            .take(self.config.validation_frames)
+            .collect();
+        let (mut psnr_sum, mut ssim_sum, mut images) = (0.0, 0.0, 0usize);
+        let mut chamfer_sum = 0.0;
+        for frame in &frames {
+            let latent = model.encode(frame.encoder.to_input(&device)).latent;
+            let scene = VoxelScene::new(&model, &self.model_config, model.voxels(latent));
+            let rays = &frame.rays;
+            let camera = scene.render_dense(&rays.camera);
+            let rgb = model
+                .camera_rgb(
+                    camera.features_tensor(0, camera.rays(), &device),
+                    rays.cameras,
+                    rays.rows,
+                    rays.columns,
+                )
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap_or_default();
+            let [_, _, h, w] = frame.encoder.image_shape;
+            let plane = 3 * h * w;
+            for c in 0..rays.cameras {
+                let planes = |data| Planes {
+                    data,
+                    channels: 3,
+                    height: h,
+                    width: w,
+                };
+                let (a, b) = (
+                    planes(&rgb[c * plane..(c + 1) * plane]),
+                    planes(&frame.encoder.images[c * plane..(c + 1) * plane]),
+                );
+                if let (Ok(p), Ok(s)) = (psnr(&a, &b, 1.0), ssim(&a, &b, 1.0)) {
+                    psnr_sum += p.min(100.0);
+                    ssim_sum += s;
+                    images += 1;
+                }
+            }
+            let lidar = scene.render_dense(&frame.lidar);
+            let to_f64 = |p: &[f32; 3]| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
+            let predicted: Vec<[f64; 3]> = points_from_depths(&frame.lidar, &lidar.depth)
+                .iter()
+                .map(to_f64)
+                .collect();
+            let truth: Vec<[f64; 3]> = frame.lidar_points.iter().map(to_f64).collect();
+            chamfer_sum += chamfer_in_roi(&predicted, &truth, &Roi::FOUR_D_OCC).chamfer;
+        }
+        ValidationReport {
+            frames: frames.len(),
+            psnr_db: psnr_sum / images.max(1) as f64,
+            ssim: ssim_sum / images.max(1) as f64,
+            chamfer_m2: chamfer_sum / frames.len().max(1) as f64,
+        }
+    }
+
+    /// Writes a checkpoint of the current state into `run`.
+    pub fn save_checkpoint(&self, run: &Path) -> Result<PathBuf, TrainError> {
+        let staged = checkpoint::staging(run, self.step)?;
+        // `valid()` folds the batch norms' pending running-statistics update into their value;
+        // saving the training module directly would store statistics one step old, and a
+        // resumed run would drift from an uninterrupted one.
+        save_weights(&self.model.valid(), &staged.model())?;
+        self.optimizer
+            .save(staged.optimizer())
+            .map_err(|e| checkpoint::io_error(&staged.optimizer(), format!("{e:?}")))?;
+        let state = CheckpointState {
+            step: self.step,
+            rng_state: self.rng.state,
+        };
+        Ok(checkpoint::commit(
+            run,
+            staged,
+            &state,
+            self.config.keep_checkpoints,
+        )?)
+    }
+
+    /// The trained weights alone, for inference (`weights:` in the graphs).
+    pub fn save_weights(&self, path: &Path) -> Result<(), TrainError> {
+        Ok(save_weights(&self.model.valid(), path)?)
+    }
+}

@@ -1,0 +1,303 @@
+//! Training, checked on a tiny synthetic scene: a step lowers the loss of a fixed batch, a few
+//! dozen steps overfit one frame, a resumed run equals an uninterrupted one bit for bit, a
+//! non-finite loss is refused without touching the trainable parameters, and configs, schedules and
+//! checkpoints behave as documented.
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+use bevworld_sensors::synth::{SynthConfig, generate};
+use bevworld_tokenizer::train::checkpoint;
+use bevworld_tokenizer::train::data::{TrainingFrame, load_frames};
+use bevworld_tokenizer::train::rng::SplitMix64;
+use bevworld_tokenizer::train::schedule::learning_rate;
+use bevworld_tokenizer::train::{TrainConfig, TrainError, Trainer};
+use bevworld_tokenizer::{FrameInputs, TokenizerConfig};
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::prelude::*;
+
+fn root() -> PathBuf {
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .join("../..")
+}
+
+fn configs() -> (TrainConfig, TokenizerConfig) {
+    TrainConfig::from_yaml_file(&root().join("configs/models/train-tokenizer-tiny.yaml"))
+        .expect("the shipped training config")
+}
+
+/// Two keyframes of a 1-second synthetic scene with small cameras, prepared once per test
+/// binary (the folder lives as long as the process).
+fn frames() -> &'static Vec<TrainingFrame> {
+    static FRAMES: OnceLock<(tempfile::TempDir, Vec<TrainingFrame>)> = OnceLock::new();
+    &FRAMES
+        .get_or_init(|| {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let data = dir.path().join("synth");
+            let config = SynthConfig {
+                seed: 77,
+                scenes: 1,
+                seconds: 1.0,
+                camera_width: 112,
+                camera_height: 64,
+                ..Default::default()
+            };
+            generate(&data, &config, |_, _| {}).expect("synthetic scene");
+            let (_, model) = configs();
+            let frames =
+                load_frames(&data, &FrameInputs::new(&model), 2, |_, _| {}).expect("frames");
+            (dir, frames)
+        })
+        .1
+}
+
+/// A trainer on the first frame only, with every camera and every LiDAR ray each step: the
+/// batch is the same at every step.
+fn fixed_batch_trainer(lr: f64) -> Trainer {
+    let (mut config, model) = configs();
+    config.optimizer.lr = lr;
+    config.optimizer.warmup_steps = 0;
+    config.optimizer.final_lr_fraction = 1.0;
+    config.rays.cameras_per_step = 6;
+    config.rays.lidar_rays = usize::MAX;
+    config.steps = 1000;
+    let one = vec![frames()[0].clone()];
+    Trainer::new(config, model, &Device::flex(), one.clone(), one).expect("trainer")
+}
+
+#[test]
+fn one_step_lowers_the_loss_of_a_fixed_batch() {
+    let mut trainer = fixed_batch_trainer(1e-3);
+    let first = trainer.train_step().expect("step 1");
+    let second = trainer.train_step().expect("step 2");
+    assert!(
+        second.loss < first.loss,
+        "loss {} then {}",
+        first.loss,
+        second.loss
+    );
+    assert!(first.grad_norm > 0.0 && first.grad_norm.is_finite());
+}
+
+#[test]
+fn a_few_dozen_steps_overfit_one_frame() {
+    let mut trainer = fixed_batch_trainer(3e-3);
+    let before = trainer.validate();
+    for _ in 0..50 {
+        trainer.train_step().expect("step");
+    }
+    let after = trainer.validate();
+    assert!(
+        after.psnr_db > before.psnr_db + 2.0,
+        "PSNR {:.2} -> {:.2} dB",
+        before.psnr_db,
+        after.psnr_db
+    );
+    assert!(
+        after.chamfer_m2 < before.chamfer_m2,
+        "Chamfer {:.2} -> {:.2} m²",
+        before.chamfer_m2,
+        after.chamfer_m2
+    );
+}
+
+/// Every float the model holds (parameters and batch-norm statistics), in module order.
+fn values(trainer: &Trainer) -> Vec<f32> {
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let data = param.val().into_data().try_to_vec::<f32>().expect("f32");
+            self.0.extend(data);
+        }
+    }
+    let mut collect = Collect(Vec::new());
+    // `valid()` folds pending batch-norm statistics into their values first.
+    trainer.model().valid().visit(&mut collect);
+    collect.0
+}
+
+/// The latent of a fixed frame in training mode, where batch norm uses the batch's statistics:
+/// it depends on the trainable parameters alone.
+fn training_latent(trainer: &Trainer, frame: &TrainingFrame) -> Vec<f32> {
+    let device = Device::flex().autodiff();
+    trainer
+        .model()
+        .encode(frame.encoder.to_input(&device))
+        .latent
+        .into_data()
+        .try_to_vec::<f32>()
+        .expect("latent")
+}
+
+#[test]
+fn a_resumed_run_equals_an_uninterrupted_one() {
+    let (mut config, model) = configs();
+    config.steps = 4;
+    config.rays.lidar_rays = 256;
+    config.rays.cameras_per_step = 2;
+    let frames = frames().clone();
+    let dir = tempfile::tempdir().expect("tempdir");
+
+    let mut straight = Trainer::new(
+        config.clone(),
+        model.clone(),
+        &Device::flex(),
+        frames.clone(),
+        frames.clone(),
+    )
+    .expect("trainer");
+    for _ in 0..4 {
+        straight.train_step().expect("step");
+    }
+
+    let run = dir.path().join("run");
+    let mut first = Trainer::new(
+        config.clone(),
+        model.clone(),
+        &Device::flex(),
+        frames.clone(),
+        frames.clone(),
+    )
+    .expect("trainer");
+    first.train_step().expect("step");
+    first.train_step().expect("step");
+    first.save_checkpoint(&run).expect("checkpoint");
+    // A later step that never reached a checkpoint is lost, as after a crash.
+    first.train_step().expect("step");
+    drop(first);
+    let mut resumed = Trainer::new(config, model, &Device::flex(), frames.clone(), frames)
+        .expect("trainer")
+        .resume(&run)
+        .expect("resume");
+    assert_eq!(resumed.step(), 2);
+    resumed.train_step().expect("step");
+    resumed.train_step().expect("step");
+
+    let (a, b) = (values(&straight), values(&resumed));
+    assert_eq!(a.len(), b.len());
+    let differing = a
+        .iter()
+        .zip(&b)
+        .filter(|(x, y)| x.to_bits() != y.to_bits())
+        .count();
+    assert_eq!(
+        differing,
+        0,
+        "{differing} of {} values differ after resuming",
+        a.len()
+    );
+}
+
+#[test]
+fn a_non_finite_loss_is_refused_and_changes_nothing() {
+    let (config, model) = configs();
+    let mut frame = frames()[0].clone();
+    frame.lidar_ranges.iter_mut().for_each(|r| *r = f32::NAN);
+    let mut trainer = Trainer::new(
+        config,
+        model,
+        &Device::flex(),
+        vec![frame.clone()],
+        vec![frame.clone()],
+    )
+    .expect("trainer");
+    let before = training_latent(&trainer, &frame);
+    match trainer.train_step() {
+        Err(TrainError::NonFinite { step, what, .. }) => {
+            assert_eq!((step, what), (1, "LiDAR loss"));
+        }
+        other => panic!("expected a refused step, got {other:?}"),
+    }
+    assert_eq!(trainer.step(), 0);
+    assert_eq!(
+        before,
+        training_latent(&trainer, &frame),
+        "the parameters moved"
+    );
+}
+
+#[test]
+fn bad_training_configs_name_every_field() {
+    let (mut config, _) = configs();
+    assert!(config.problems().is_empty(), "{:?}", config.problems());
+    config.optimizer.lr = -1.0;
+    config.optimizer.beta_2 = 1.0;
+    config.rays.lidar_rays = 0;
+    config.data.val.seed = config.data.train.seed + 3;
+    let problems = config.problems().join("\n");
+    for field in [
+        "optimizer.lr",
+        "optimizer.beta_2",
+        "rays.lidar_rays",
+        "data.val.seed",
+    ] {
+        assert!(
+            problems.contains(field),
+            "{field} missing from:\n{problems}"
+        );
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("bad.yaml");
+    std::fs::write(&path, "model: tokenizer-tiny.yaml\nsteps: ten\n").expect("write");
+    let message = TrainConfig::from_yaml_file(&path)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        message.contains("bad.yaml") && message.contains("steps"),
+        "{message}"
+    );
+}
+
+#[test]
+fn the_schedule_warms_up_then_follows_the_cosine() {
+    // Warm-up: lr · (step + 1) / warmup.
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 0) - 1e-4).abs() < 1e-12);
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 9) - 1e-3).abs() < 1e-12);
+    // Start of the decay, its middle (half way between lr and the floor), and the end.
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 10) - 1e-3).abs() < 1e-12);
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 60) - 0.55e-3).abs() < 1e-12);
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 110) - 1e-4).abs() < 1e-12);
+}
+
+#[test]
+fn draws_are_distinct_and_reproducible() {
+    let mut a = SplitMix64::new(5);
+    let picks = a.choose(10, 4);
+    let mut sorted = picks.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(sorted.len(), 4);
+    assert!(picks.iter().all(|&i| i < 10));
+    assert_eq!(SplitMix64::new(5).choose(10, 4), picks);
+    assert_eq!(a.choose(3, 10).len(), 3);
+}
+
+#[test]
+fn checkpoints_keep_the_newest_and_ignore_partial_ones() {
+    let mut trainer = fixed_batch_trainer(1e-3);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = dir.path();
+    assert!(matches!(
+        checkpoint::latest(run),
+        Err(checkpoint::CheckpointError::None { .. })
+    ));
+    for _ in 0..5 {
+        trainer.train_step().expect("step");
+        trainer.save_checkpoint(run).expect("checkpoint");
+    }
+    // keep_checkpoints is 3 in the shipped config.
+    let mut names: Vec<String> = std::fs::read_dir(checkpoint::checkpoints_dir(run))
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().to_string())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        ["latest", "step-0000003", "step-0000004", "step-0000005"]
+    );
+    // A crash mid-write leaves a .partial folder, which is never taken for a checkpoint.
+    std::fs::create_dir_all(checkpoint::checkpoints_dir(run).join("step-0000006.partial"))
+        .expect("mkdir");
+    let (_, state) = checkpoint::latest(run).expect("latest");
+    assert_eq!(state.step, 5);
+}

@@ -1,0 +1,186 @@
+//! `bevworld train tokenizer`: trains the tokenizer from a training config, with checkpoints
+//! every N steps (`--resume` continues exactly), periodic validation, `metrics.csv`, and the
+//! final weights at `RUN/tokenizer.bpk`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use bevworld_tokenizer::FrameInputs;
+use bevworld_tokenizer::train::checkpoint;
+use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
+use bevworld_tokenizer::train::metrics_log::{MetricsLog, Row};
+use bevworld_tokenizer::train::{TrainConfig, Trainer};
+use clap::{Args, Subcommand};
+
+#[derive(Subcommand)]
+pub enum TrainCommand {
+    /// Train the BEV tokenizer.
+    Tokenizer(TrainTokenizerArgs),
+}
+
+#[derive(Args)]
+pub struct TrainTokenizerArgs {
+    /// Training config.
+    #[arg(long, default_value = "configs/models/train-tokenizer-tiny.yaml")]
+    pub config: PathBuf,
+    /// Run folder: checkpoints, metrics.csv, the configs used, and tokenizer.bpk at the end.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue from the run folder's newest checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    /// Override the config's step count.
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Train on this dataset instead of the config's synthetic training set.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Validate on this dataset instead of the config's synthetic validation set.
+    #[arg(long)]
+    pub val: Option<PathBuf>,
+    /// Log a training row to metrics.csv every N steps.
+    #[arg(long, default_value_t = 10)]
+    pub log_every: usize,
+}
+
+pub fn run(command: &TrainCommand) -> Result<ExitCode> {
+    match command {
+        TrainCommand::Tokenizer(args) => tokenizer(args),
+    }
+}
+
+fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
+    let (mut config, model_config) = TrainConfig::from_yaml_file(&args.config)?;
+    if let Some(steps) = args.steps {
+        config.steps = steps;
+    }
+    let has_checkpoint = checkpoint::latest(&args.out).is_ok();
+    if has_checkpoint && !args.resume {
+        bail!(
+            "{} already holds checkpoints: pass --resume to continue that run, or choose another --out",
+            args.out.display()
+        );
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let train_dir = match &args.data {
+        Some(dir) => dir.clone(),
+        None => {
+            ensure_synthetic(&config.data.train)?;
+            config.data.train.dir.clone()
+        }
+    };
+    let val_dir = match &args.val {
+        Some(dir) => dir.clone(),
+        None => {
+            ensure_synthetic(&config.data.val)?;
+            config.data.val.dir.clone()
+        }
+    };
+    let inputs = FrameInputs::new(&model_config);
+    let loading = indicatif::ProgressBar::new(0).with_message("preparing frames");
+    let train = load_frames(&train_dir, &inputs, usize::MAX, |done, total| {
+        loading.set_length(total as u64);
+        loading.set_position(done as u64);
+    })?;
+    let val = load_frames(&val_dir, &inputs, config.validation_frames, |_, _| {})?;
+    loading.finish_and_clear();
+    println!(
+        "training '{}' on {} frames of {} (validation: {} frames of {})",
+        model_config.name,
+        train.len(),
+        train_dir.display(),
+        val.len(),
+        val_dir.display()
+    );
+
+    let (_, device) = bevworld_device::from_env()?;
+    let mut trainer = Trainer::new(config.clone(), model_config.clone(), &device, train, val)?;
+    if args.resume {
+        trainer = trainer.resume(&args.out)?;
+        println!("resumed at step {}", trainer.step());
+    }
+    // The configs this run used, beside its weights.
+    std::fs::copy(&args.config, args.out.join("train.yaml")).context("copying the train config")?;
+    std::fs::copy(&config.model, args.out.join("tokenizer.yaml"))
+        .context("copying the model config")?;
+    let mut log = MetricsLog::open(&args.out, args.resume.then_some(trainer.step()))
+        .with_context(|| format!("opening {}/metrics.csv", args.out.display()))?;
+
+    let started = Instant::now();
+    let progress = indicatif::ProgressBar::new(config.steps as u64);
+    progress.set_position(trainer.step() as u64);
+    progress.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} steps {elapsed_precise} eta {eta} {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    while !trainer.is_done() {
+        let report = match trainer.train_step() {
+            Ok(report) => report,
+            Err(error) => {
+                progress.abandon();
+                return Err(error.into());
+            }
+        };
+        progress.set_position(report.step as u64);
+        progress.set_message(format!(
+            "loss {:.4} (rgb {:.4}, lidar {:.3} m)",
+            report.loss, report.loss_rgb, report.loss_lidar
+        ));
+        if report.step % args.log_every.max(1) == 0 {
+            log.append(&Row {
+                step: report.step,
+                phase: "train",
+                lr: Some(report.lr),
+                loss: Some(report.loss),
+                loss_rgb: Some(report.loss_rgb),
+                loss_lidar: Some(report.loss_lidar),
+                grad_norm: Some(report.grad_norm),
+                elapsed_s: started.elapsed().as_secs_f64(),
+                ..Row::default()
+            })?;
+        }
+        let last = trainer.is_done();
+        if report.step % config.validate_every == 0 || last {
+            let v = trainer.validate();
+            tracing::info!(
+                step = report.step,
+                psnr_db = v.psnr_db,
+                ssim = v.ssim,
+                chamfer_m2 = v.chamfer_m2,
+                "validation"
+            );
+            progress.println(format!(
+                "step {}: validation PSNR {:.2} dB, SSIM {:.3}, Chamfer {:.3} m² ({} frames)",
+                report.step, v.psnr_db, v.ssim, v.chamfer_m2, v.frames
+            ));
+            log.append(&Row {
+                step: report.step,
+                phase: "val",
+                psnr_db: Some(v.psnr_db),
+                ssim: Some(v.ssim),
+                chamfer_m2: Some(v.chamfer_m2),
+                elapsed_s: started.elapsed().as_secs_f64(),
+                ..Row::default()
+            })?;
+        }
+        if report.step % config.checkpoint_every == 0 || last {
+            trainer.save_checkpoint(&args.out)?;
+        }
+    }
+    progress.finish();
+    let weights = args.out.join("tokenizer.bpk");
+    trainer.save_weights(&weights)?;
+    println!(
+        "{} steps in {:.1} min; weights {}; curve {}",
+        trainer.step(),
+        started.elapsed().as_secs_f64() / 60.0,
+        weights.display(),
+        log.path().display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
