@@ -173,14 +173,60 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         }
     }
     progress.finish();
+    let curves = args.out.join("curves.png");
+    plot_curves(log.path(), &curves)?;
     let weights = args.out.join("tokenizer.bpk");
     trainer.save_weights(&weights)?;
     println!(
-        "{} steps in {:.1} min; weights {}; curve {}",
+        "{} steps in {:.1} min; weights {}; log {}; curves {}",
         trainer.step(),
         started.elapsed().as_secs_f64() / 60.0,
         weights.display(),
-        log.path().display()
+        log.path().display(),
+        curves.display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// Draws `curves.png` from `metrics.csv`: training loss (log scale, left), validation PSNR
+/// (middle) and validation Chamfer (right).
+fn plot_curves(csv: &std::path::Path, png: &std::path::Path) -> Result<()> {
+    let text =
+        std::fs::read_to_string(csv).with_context(|| format!("reading {}", csv.display()))?;
+    let (mut loss, mut psnr, mut chamfer) = (Vec::new(), Vec::new(), Vec::new());
+    for line in text.lines().skip(1) {
+        let fields: Vec<&str> = line.split(',').collect();
+        let number = |i: usize| fields.get(i).and_then(|f| f.parse::<f64>().ok());
+        let Some(step) = number(0) else { continue };
+        match fields.get(1) {
+            Some(&"train") => loss.extend(number(3).map(|v| (step, v))),
+            Some(&"val") => {
+                psnr.extend(number(7).map(|v| (step, v)));
+                chamfer.extend(number(9).map(|v| (step, v)));
+            }
+            _ => {}
+        }
+    }
+    use bevworld_tokenizer::train::plot::{Series, plot};
+    plot(
+        png,
+        &[
+            Series {
+                points: &loss,
+                colour: [200, 60, 40],
+                log_scale: true,
+            },
+            Series {
+                points: &psnr,
+                colour: [40, 90, 200],
+                log_scale: false,
+            },
+            Series {
+                points: &chamfer,
+                colour: [30, 150, 60],
+                log_scale: true,
+            },
+        ],
+    )
+    .with_context(|| format!("writing {}", png.display()))
 }

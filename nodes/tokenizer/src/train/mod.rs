@@ -7,6 +7,7 @@ pub mod config;
 pub mod data;
 pub mod losses;
 pub mod metrics_log;
+pub mod plot;
 pub mod rng;
 pub mod schedule;
 pub mod trainer;
