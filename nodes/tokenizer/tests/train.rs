@@ -301,3 +301,13 @@ fn checkpoints_keep_the_newest_and_ignore_partial_ones() {
     let (_, state) = checkpoint::latest(run).expect("latest");
     assert_eq!(state.step, 5);
 }
+
+#[test]
+fn the_shipped_training_configs_load() {
+    for name in ["tiny", "paper"] {
+        let path = root().join(format!("configs/models/train-tokenizer-{name}.yaml"));
+        let (config, model) = TrainConfig::from_yaml_file(&path).expect("loads");
+        assert!(config.problems().is_empty());
+        assert_eq!(model.name, format!("tokenizer-{name}"));
+    }
+}
