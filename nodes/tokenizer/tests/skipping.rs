@@ -19,41 +19,61 @@ fn tiny() -> TokenizerConfig {
     TokenizerConfig::from_yaml_file(&path).expect("tiny config")
 }
 
-/// Two feature vectors whose alpha logits under this model are below −15 and above +10,
+/// Two feature vectors whose alpha logits under this model are below −20 and above +20,
 /// found among scaled random candidates (the head is piecewise linear, so large inputs
 /// saturate α one way or the other).
 fn empty_and_occupied(model: &Tokenizer, channels: usize, device: &Device) -> (Vec<f32>, Vec<f32>) {
     let candidates = 512;
-    let features = Tensor::<3>::random(
+    // Read the random draw back once and rebuild the tensor from it, so that the logits and
+    // the returned vectors come from the very same values.
+    let values = Tensor::<3>::random(
         [1, candidates, channels],
         Distribution::Normal(0.0, 1.0),
         device,
     )
-    .mul_scalar(50.0);
+    .mul_scalar(50.0)
+    .into_data()
+    .try_to_vec::<f32>()
+    .expect("features");
+    let features = Tensor::<3>::from_data(
+        TensorData::new(values.clone(), [1, candidates, channels]),
+        device,
+    );
     let logits = model
-        .alpha_logits(features.clone())
+        .alpha_logits(features)
         .into_data()
         .try_to_vec::<f32>()
         .expect("logits");
-    let values = features.into_data().try_to_vec::<f32>().expect("features");
     let argmin = (0..candidates)
         .min_by(|&a, &b| logits[a].total_cmp(&logits[b]))
         .expect("candidates");
     let argmax = (0..candidates)
         .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
         .expect("candidates");
-    assert!(
-        logits[argmin] < -10.0,
-        "no empty candidate: {}",
-        logits[argmin]
-    );
-    assert!(
-        logits[argmax] > 10.0,
-        "no occupied candidate: {}",
-        logits[argmax]
-    );
+    // The head is piecewise linear: far along a direction the logit grows linearly, so
+    // doubling a candidate drives α to 0 or 1 as far as needed.
+    let logit_of = |v: &[f32]| -> f32 {
+        let t = Tensor::<3>::from_data(TensorData::new(v.to_vec(), [1, 1, channels]), device);
+        model
+            .alpha_logits(t)
+            .into_data()
+            .try_to_vec::<f32>()
+            .expect("logit")[0]
+    };
+    let push = |mut v: Vec<f32>, goal: fn(f32) -> bool| -> Vec<f32> {
+        for _ in 0..12 {
+            if goal(logit_of(&v)) {
+                return v;
+            }
+            v.iter_mut().for_each(|x| *x *= 2.0);
+        }
+        panic!("no candidate reaches the goal: logit {}", logit_of(&v));
+    };
     let row = |i: usize| values[i * channels..(i + 1) * channels].to_vec();
-    (row(argmin), row(argmax))
+    (
+        push(row(argmin), |s| s < -20.0),
+        push(row(argmax), |s| s > 20.0),
+    )
 }
 
 /// The tiny grid (8 x 16 x 128 x 128 over x, y in [-80, 80), z in [-4.5, 4.5]) filled with

@@ -146,6 +146,10 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
         frames.clone(),
     )
     .expect("trainer");
+    // Both runs start from the same parameters: the second loads the first's step-0 state
+    // (initialisation draws from a device RNG that parallel tests share).
+    let start = dir.path().join("start");
+    straight.save_checkpoint(&start).expect("step-0 checkpoint");
     for _ in 0..4 {
         straight.train_step().expect("step");
     }
@@ -158,7 +162,9 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
         frames.clone(),
         frames.clone(),
     )
-    .expect("trainer");
+    .expect("trainer")
+    .resume(&start)
+    .expect("resume from step 0");
     first.train_step().expect("step");
     first.train_step().expect("step");
     first.save_checkpoint(&run).expect("checkpoint");
