@@ -139,6 +139,8 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 loss: Some(report.loss),
                 loss_rgb: Some(report.loss_rgb),
                 loss_lidar: Some(report.loss_lidar),
+                loss_gan: report.loss_gan,
+                loss_discriminator: report.loss_discriminator,
                 grad_norm: Some(report.grad_norm),
                 elapsed_s: started.elapsed().as_secs_f64(),
                 ..Row::default()
@@ -201,8 +203,8 @@ fn plot_curves(csv: &std::path::Path, png: &std::path::Path) -> Result<()> {
         match fields.get(1) {
             Some(&"train") => loss.extend(number(3).map(|v| (step, v))),
             Some(&"val") => {
-                psnr.extend(number(7).map(|v| (step, v)));
-                chamfer.extend(number(9).map(|v| (step, v)));
+                psnr.extend(number(9).map(|v| (step, v)));
+                chamfer.extend(number(11).map(|v| (step, v)));
             }
             _ => {}
         }

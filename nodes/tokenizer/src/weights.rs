@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use burn::module::Module;
 use burn::prelude::*;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 
@@ -30,13 +31,7 @@ pub enum WeightsError {
 
 /// Writes the model's weights (the file name is used as given).
 pub fn save_weights(model: &Tokenizer, path: &Path) -> Result<(), WeightsError> {
-    let mut store = BurnpackStore::from_file(path)
-        .auto_extension(false)
-        .overwrite(true);
-    model.save_into(&mut store).map_err(|e| WeightsError::Io {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })
+    save_module(model, path)
 }
 
 /// Builds the model of `config` and loads every one of its tensors from `path`.
@@ -45,18 +40,34 @@ pub fn load_weights(
     path: &Path,
     device: &Device,
 ) -> Result<Tokenizer, WeightsError> {
+    load_module(config.init(device), &config.name, path)
+}
+
+/// Writes any module's weights as burnpack (the file name is used as given).
+pub fn save_module<M: Module>(module: &M, path: &Path) -> Result<(), WeightsError> {
+    let mut store = BurnpackStore::from_file(path)
+        .auto_extension(false)
+        .overwrite(true);
+    module.save_into(&mut store).map_err(|e| WeightsError::Io {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Loads every tensor of `module` (built for `name`) from `path`; a missing tensor or one of
+/// another shape is an error naming a few of them.
+pub fn load_module<M: Module>(mut module: M, name: &str, path: &Path) -> Result<M, WeightsError> {
     if !path.is_file() {
         return Err(WeightsError::NotFound {
             path: path.to_path_buf(),
         });
     }
-    let mut model = config.init(device);
     let mut store = BurnpackStore::from_file(path)
         .auto_extension(false)
         .allow_partial(true)
         // Collect shape errors into the result, to name a few instead of all of them.
         .validate(false);
-    let result = model.load_from(&mut store).map_err(|e| WeightsError::Io {
+    let result = module.load_from(&mut store).map_err(|e| WeightsError::Io {
         path: path.to_path_buf(),
         message: e.to_string(),
     })?;
@@ -67,11 +78,11 @@ pub fn load_weights(
         .collect();
     problems.extend(result.errors.iter().map(|e| format!("{e:?}")));
     if problems.is_empty() {
-        Ok(model)
+        Ok(module)
     } else {
         Err(WeightsError::Mismatch {
             path: path.to_path_buf(),
-            config: config.name.clone(),
+            config: name.to_string(),
             count: problems.len(),
             examples: problems
                 .iter()

@@ -101,8 +101,8 @@ fn a_few_dozen_steps_overfit_one_frame() {
     );
 }
 
-/// Every float the model holds (parameters and batch-norm statistics), in module order.
-fn values(trainer: &Trainer) -> Vec<f32> {
+/// Every float a module holds (parameters and batch-norm statistics), in module order.
+fn module_values<M: Module>(module: &M) -> Vec<f32> {
     struct Collect(Vec<f32>);
     impl ModuleVisitor for Collect {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
@@ -112,8 +112,15 @@ fn values(trainer: &Trainer) -> Vec<f32> {
     }
     let mut collect = Collect(Vec::new());
     // `valid()` folds pending batch-norm statistics into their values first.
-    trainer.model().valid().visit(&mut collect);
+    module.valid().visit(&mut collect);
     collect.0
+}
+
+/// The tokenizer's and the discriminator's values.
+fn values(trainer: &Trainer) -> Vec<f32> {
+    let mut all = module_values(trainer.model());
+    all.extend(module_values(trainer.discriminator()));
+    all
 }
 
 /// The latent of a fixed frame in training mode, where batch norm uses the batch's statistics:
@@ -133,6 +140,8 @@ fn training_latent(trainer: &Trainer, frame: &TrainingFrame) -> Vec<f32> {
 fn a_resumed_run_equals_an_uninterrupted_one() {
     let (mut config, model) = configs();
     config.steps = 4;
+    // The GAN from the second step on, so that the discriminator and its optimiser resume too.
+    config.loss.gan_start = 1;
     config.rays.lidar_rays = 256;
     config.rays.cameras_per_step = 2;
     let frames = frames().clone();
@@ -316,4 +325,53 @@ fn the_shipped_training_configs_load() {
         assert!(config.problems().is_empty());
         assert_eq!(model.name, format!("tokenizer-{name}"));
     }
+}
+
+#[test]
+fn the_gan_switches_on_at_the_configured_step() {
+    let (mut config, model) = configs();
+    config.loss.gan_start = 2;
+    config.rays.lidar_rays = 128;
+    let frames = frames().clone();
+    let mut trainer =
+        Trainer::new(config, model, &Device::flex(), frames.clone(), frames).expect("trainer");
+    let initial = module_values(trainer.discriminator());
+    for step in 1..=2 {
+        assert!(!trainer.gan_active() || step > 2);
+        let report = trainer.train_step().expect("step");
+        assert_eq!(
+            (report.loss_gan, report.loss_discriminator),
+            (None, None),
+            "step {step}"
+        );
+    }
+    assert_eq!(
+        initial,
+        module_values(trainer.discriminator()),
+        "the discriminator moved during warm-up"
+    );
+    assert!(trainer.gan_active());
+    let report = trainer.train_step().expect("step 3");
+    let (gan, disc) = (
+        report.loss_gan.expect("gan term"),
+        report.loss_discriminator.expect("disc loss"),
+    );
+    assert!(
+        gan.is_finite() && disc.is_finite() && disc >= 0.0,
+        "{gan} {disc}"
+    );
+    // The total is the weighted sum of its parts.
+    let w = &trainer.config.loss;
+    let expected =
+        w.rgb_l1 * report.loss_rgb + w.lidar_l1 * report.loss_lidar + w.gan_generator * gan;
+    assert!(
+        (report.loss - expected).abs() < 1e-4 * (1.0 + expected.abs()),
+        "{} vs {expected}",
+        report.loss
+    );
+    assert_ne!(
+        initial,
+        module_values(trainer.discriminator()),
+        "the discriminator did not learn"
+    );
 }

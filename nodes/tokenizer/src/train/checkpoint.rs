@@ -1,5 +1,5 @@
-//! Checkpoints: `RUN/checkpoints/step-NNNNNNN/` holds the model (burnpack), the optimiser state
-//! (burnpack) and `state.json` (step, RNG state). A checkpoint is written into a temporary
+//! Checkpoints: `RUN/checkpoints/step-NNNNNNN/` holds the model and the patch discriminator
+//! (burnpack), both optimisers' states (burnpack) and `state.json` (step, RNG state). A checkpoint is written into a temporary
 //! folder and renamed into place, and `RUN/checkpoints/latest` names the newest complete one,
 //! replaced atomically, so a crash at any instant leaves the last good checkpoint loadable.
 
@@ -43,6 +43,12 @@ impl CheckpointFiles {
     }
     pub fn optimizer(&self) -> PathBuf {
         self.dir.join("optimizer.bpk")
+    }
+    pub fn discriminator(&self) -> PathBuf {
+        self.dir.join("discriminator.bpk")
+    }
+    pub fn discriminator_optimizer(&self) -> PathBuf {
+        self.dir.join("discriminator_optimizer.bpk")
     }
     pub fn state(&self) -> PathBuf {
         self.dir.join("state.json")

@@ -39,6 +39,14 @@ pub struct LossWeights {
     pub rgb_l1: f64,
     /// L1 between rendered depth and LiDAR range, in metres.
     pub lidar_l1: f64,
+    /// The generator's adversarial (hinge) term on the rendered cameras.
+    pub gan_generator: f64,
+    /// The discriminator's own hinge loss.
+    pub gan_discriminator: f64,
+    /// Steps before the GAN terms start (the paper: 30,000).
+    pub gan_start: usize,
+    /// Channels of the patch discriminator's first layer.
+    pub discriminator_channels: usize,
 }
 
 /// A synthetic dataset: `scenes` scenes from seed `seed` on (scene k uses seed + k), made with

@@ -5,6 +5,7 @@ pub mod checkpoint;
 pub mod clip;
 pub mod config;
 pub mod data;
+pub mod discriminator;
 pub mod losses;
 pub mod metrics_log;
 pub mod plot;

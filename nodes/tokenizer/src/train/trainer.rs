@@ -1,6 +1,7 @@
 //! The training loop of one tokenizer: a step draws a frame, renders the step's rays (whole
-//! cameras for the RGB upsampler, a random subset of LiDAR rays), takes the L1 losses, clips
-//! the global gradient norm and applies AdamW at the scheduled rate.
+//! cameras for the RGB upsampler, a random subset of LiDAR rays), takes the L1 losses and,
+//! after `gan_start`, the adversarial term, clips the global gradient norm and applies AdamW at
+//! the scheduled rate; then the patch discriminator takes its own step.
 //!
 //! A step whose loss or gradient norm is not finite is refused before any parameter changes,
 //! with an error naming the step and the term; the last checkpoint stays the last good one.
@@ -20,10 +21,22 @@ use crate::train::checkpoint::{self, CheckpointError, CheckpointState};
 use crate::train::clip::clip_global_norm;
 use crate::train::config::TrainConfig;
 use crate::train::data::TrainingFrame;
+use crate::train::discriminator::{
+    PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
+};
 use crate::train::losses::l1;
 use crate::train::rng::SplitMix64;
 use crate::train::schedule::learning_rate;
-use crate::weights::{WeightsError, load_weights, save_weights};
+use crate::weights::{WeightsError, load_module, load_weights, save_module, save_weights};
+
+/// One step's rendered cameras, their targets, and the reconstruction losses.
+struct StepLosses {
+    /// `[k, 3, H, W]` in [0, 1].
+    rgb: Tensor<4>,
+    target: Tensor<4>,
+    loss_rgb: Tensor<1>,
+    loss_lidar: Tensor<1>,
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
@@ -54,6 +67,9 @@ pub struct StepReport {
     pub loss: f64,
     pub loss_rgb: f64,
     pub loss_lidar: f64,
+    /// The generator's adversarial term and the discriminator's loss, once the GAN started.
+    pub loss_gan: Option<f64>,
+    pub loss_discriminator: Option<f64>,
     /// Before clipping.
     pub grad_norm: f64,
 }
@@ -74,6 +90,8 @@ pub struct Trainer {
     pub model_config: TokenizerConfig,
     model: Tokenizer,
     optimizer: burn::optim::ModuleOptimizer,
+    discriminator: PatchDiscriminator,
+    discriminator_optimizer: burn::optim::ModuleOptimizer,
     /// The autodiff device; validation runs on its inner device.
     device: Device,
     rng: SplitMix64,
@@ -114,8 +132,12 @@ impl Trainer {
         let device = device.clone().autodiff();
         device.seed(config.seed);
         let model = model_config.init(&device);
+        let discriminator =
+            PatchDiscriminatorConfig::new(config.loss.discriminator_channels).init(&device);
         Ok(Self {
             optimizer: Self::optimizer(&config),
+            discriminator_optimizer: Self::optimizer(&config),
+            discriminator,
             rng: SplitMix64::new(config.seed ^ 0x5eed_0f_da7a),
             step: 0,
             depths: sample_depths(
@@ -141,6 +163,17 @@ impl Trainer {
         self.optimizer = Self::optimizer(&self.config)
             .load(files.optimizer())
             .map_err(|e| checkpoint::io_error(&files.optimizer(), format!("{e:?}")))?;
+        self.discriminator = load_module(
+            PatchDiscriminatorConfig::new(self.config.loss.discriminator_channels)
+                .init(&self.device),
+            "discriminator",
+            &files.discriminator(),
+        )?;
+        self.discriminator_optimizer = Self::optimizer(&self.config)
+            .load(files.discriminator_optimizer())
+            .map_err(|e| {
+                checkpoint::io_error(&files.discriminator_optimizer(), format!("{e:?}"))
+            })?;
         self.step = state.step;
         self.rng = SplitMix64 {
             state: state.rng_state,
@@ -160,8 +193,13 @@ impl Trainer {
         self.step >= self.config.steps
     }
 
+    /// Whether the step about to be taken includes the GAN terms.
+    pub fn gan_active(&self) -> bool {
+        self.step >= self.config.loss.gan_start
+    }
+
     /// The loss of one drawn frame and ray set, and its parts.
-    fn losses(&mut self) -> (Tensor<1>, Tensor<1>, Tensor<1>) {
+    fn losses(&mut self) -> StepLosses {
         let device = self.device.clone();
         let frame = &self.train[self.rng.below(self.train.len())];
         let latent = self.model.encode(frame.encoder.to_input(&device)).latent;
@@ -204,7 +242,7 @@ impl Trainer {
             .collect();
         let target =
             Tensor::<4>::from_data(TensorData::new(target, [cameras.len(), 3, h, w]), &device);
-        let loss_rgb = l1(rgb, target);
+        let loss_rgb = l1(rgb.clone(), target.clone());
 
         let chosen = self
             .rng
@@ -221,18 +259,31 @@ impl Trainer {
             let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), &device);
             l1(rendered.depth, target)
         };
-        let loss = loss_rgb.clone().mul_scalar(self.config.loss.rgb_l1)
-            + loss_lidar.clone().mul_scalar(self.config.loss.lidar_l1);
-        (loss, loss_rgb, loss_lidar)
+        StepLosses {
+            rgb,
+            target,
+            loss_rgb,
+            loss_lidar,
+        }
     }
 
     /// One optimiser step.
     pub fn train_step(&mut self) -> Result<StepReport, TrainError> {
-        let (loss, loss_rgb, loss_lidar) = self.losses();
+        let gan = self.gan_active();
+        let parts = self.losses();
+        let weights = &self.config.loss;
+        let mut loss = parts.loss_rgb.clone().mul_scalar(weights.rgb_l1)
+            + parts.loss_lidar.clone().mul_scalar(weights.lidar_l1);
+        let mut loss_gan = None;
+        if gan {
+            let adversarial = generator_hinge(self.discriminator.forward(parts.rgb.clone()));
+            loss_gan = Some(scalar(adversarial.clone().detach()));
+            loss = loss + adversarial.mul_scalar(weights.gan_generator);
+        }
         let (value, rgb, lidar) = (
             scalar(loss.clone()),
-            scalar(loss_rgb.detach()),
-            scalar(loss_lidar.detach()),
+            scalar(parts.loss_rgb.detach()),
+            scalar(parts.loss_lidar.detach()),
         );
         if !value.is_finite() {
             let what = if !rgb.is_finite() {
@@ -268,6 +319,33 @@ impl Trainer {
             self.step,
         );
         self.model = self.optimizer.step(lr, self.model.clone(), grads);
+
+        // The discriminator learns from the same images, the render detached from the tokenizer.
+        let mut loss_discriminator = None;
+        if gan {
+            let real = self.discriminator.forward(parts.target);
+            let fake = self.discriminator.forward(parts.rgb.detach());
+            let d_loss =
+                discriminator_hinge(real, fake).mul_scalar(self.config.loss.gan_discriminator);
+            let d_value = scalar(d_loss.clone());
+            if !d_value.is_finite() {
+                return Err(TrainError::NonFinite {
+                    step: self.step + 1,
+                    what: "discriminator loss",
+                    value: d_value,
+                });
+            }
+            let mut d_grads = GradientsParams::from_grads(d_loss.backward(), &self.discriminator);
+            clip_global_norm(
+                &self.discriminator,
+                &mut d_grads,
+                self.config.optimizer.grad_clip_norm,
+            );
+            self.discriminator =
+                self.discriminator_optimizer
+                    .step(lr, self.discriminator.clone(), d_grads);
+            loss_discriminator = Some(d_value);
+        }
         self.step += 1;
         Ok(StepReport {
             step: self.step,
@@ -275,6 +353,8 @@ impl Trainer {
             loss: value,
             loss_rgb: rgb,
             loss_lidar: lidar,
+            loss_gan,
+            loss_discriminator,
             grad_norm,
         })
     }
@@ -349,6 +429,12 @@ impl Trainer {
         // saving the training module directly would store statistics one step old, and a
         // resumed run would drift from an uninterrupted one.
         save_weights(&self.model.valid(), &staged.model())?;
+        save_module(&self.discriminator.valid(), &staged.discriminator())?;
+        self.discriminator_optimizer
+            .save(staged.discriminator_optimizer())
+            .map_err(|e| {
+                checkpoint::io_error(&staged.discriminator_optimizer(), format!("{e:?}"))
+            })?;
         self.optimizer
             .save(staged.optimizer())
             .map_err(|e| checkpoint::io_error(&staged.optimizer(), format!("{e:?}")))?;
@@ -362,6 +448,11 @@ impl Trainer {
             &state,
             self.config.keep_checkpoints,
         )?)
+    }
+
+    /// The discriminator, for tests and inspection.
+    pub fn discriminator(&self) -> &PatchDiscriminator {
+        &self.discriminator
     }
 
     /// The trained weights alone, for inference (`weights:` in the graphs).
