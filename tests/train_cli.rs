@@ -92,7 +92,7 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
         .collect();
     assert_eq!(phases, ["train", "train", "train", "val"], "{csv}");
     let val_row: Vec<&str> = csv.lines().last().expect("row").split(',').collect();
-    let psnr: f64 = val_row[9].parse().expect("psnr");
+    let psnr: f64 = val_row[10].parse().expect("psnr");
     assert!(psnr > 5.0 && psnr < 60.0, "{psnr}");
 
     let again = call(args("3", false));

@@ -40,6 +40,10 @@ pub struct TrainTokenizerArgs {
     /// Validate on this dataset instead of the config's synthetic validation set.
     #[arg(long)]
     pub val: Option<PathBuf>,
+    /// torchvision's VGG16 weights for the perceptual term (overrides the config's
+    /// `perceptual_weights`).
+    #[arg(long)]
+    pub vgg: Option<PathBuf>,
     /// Log a training row to metrics.csv every N steps.
     #[arg(long, default_value_t = 10)]
     pub log_every: usize,
@@ -55,6 +59,9 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
     let (mut config, model_config) = TrainConfig::from_yaml_file(&args.config)?;
     if let Some(steps) = args.steps {
         config.steps = steps;
+    }
+    if let Some(vgg) = &args.vgg {
+        config.perceptual_weights = Some(vgg.clone());
     }
     let has_checkpoint = checkpoint::latest(&args.out).is_ok();
     if has_checkpoint && !args.resume {
@@ -139,6 +146,7 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 loss: Some(report.loss),
                 loss_rgb: Some(report.loss_rgb),
                 loss_lidar: Some(report.loss_lidar),
+                loss_perceptual: report.loss_perceptual,
                 loss_gan: report.loss_gan,
                 loss_discriminator: report.loss_discriminator,
                 grad_norm: Some(report.grad_norm),
@@ -203,8 +211,8 @@ fn plot_curves(csv: &std::path::Path, png: &std::path::Path) -> Result<()> {
         match fields.get(1) {
             Some(&"train") => loss.extend(number(3).map(|v| (step, v))),
             Some(&"val") => {
-                psnr.extend(number(9).map(|v| (step, v)));
-                chamfer.extend(number(11).map(|v| (step, v)));
+                psnr.extend(number(10).map(|v| (step, v)));
+                chamfer.extend(number(12).map(|v| (step, v)));
             }
             _ => {}
         }

@@ -11,11 +11,11 @@
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
-use burn::store::{ModuleSnapshot, PyTorchToBurnAdapter, PytorchStore, SafetensorsStore};
 use thiserror::Error;
 
 use crate::frechet::{FeatureExtractor, frechet_distance_of_features};
 use crate::inception::{INCEPTION_SIZE, InceptionV3, MIN_INPUT_SIZE, POOL3_FEATURES};
+use crate::torch_weights::{TorchLoadError, load_torch_state_dict};
 
 /// The file FID's reference implementation uses, for messages.
 pub const PYTORCH_FID_WEIGHTS: &str = "pt_inception-2015-12-05-6726825d.pth";
@@ -56,75 +56,20 @@ pub const TO_PYTORCH: [(&str, &str); 2] = [("^conv2d_", "Conv2d_"), ("^mixed_", 
 
 /// Loads InceptionV3 weights, checking that every tensor of the network was in the file.
 pub fn load_inception(path: &Path, device: &Device) -> Result<InceptionV3, FidError> {
-    if !path.is_file() {
-        return Err(FidError::NotFound {
-            path: path.to_path_buf(),
-        });
-    }
-    let extension = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    let mut model = InceptionV3::init(device);
-    let load_error = |message: String| FidError::Load {
-        path: path.to_path_buf(),
-        message,
-    };
-    let result = match extension.as_str() {
-        "pth" | "pt" | "bin" => {
-            let mut store = PytorchStore::from_file(path).allow_partial(true);
-            for (from, to) in FROM_PYTORCH {
-                store = store.with_key_remapping(from, to);
-            }
-            model
-                .load_from(&mut store)
-                .map_err(|e| load_error(e.to_string()))?
-        }
-        "safetensors" => {
-            let mut store = SafetensorsStore::from_file(path)
-                .with_from_adapter(PyTorchToBurnAdapter)
-                .allow_partial(true);
-            for (from, to) in FROM_PYTORCH {
-                store = store.with_key_remapping(from, to);
-            }
-            model
-                .load_from(&mut store)
-                .map_err(|e| load_error(e.to_string()))?
-        }
-        _ => {
-            return Err(FidError::UnknownFormat {
-                path: path.to_path_buf(),
-            });
-        }
-    };
-    if !result.errors.is_empty() {
-        let first: Vec<String> = result
-            .errors
-            .iter()
-            .take(3)
-            .map(|e| format!("{e:?}"))
-            .collect();
-        return Err(load_error(format!(
-            "{} tensors did not fit: {}",
-            result.errors.len(),
-            first.join("; ")
-        )));
-    }
-    if !result.missing.is_empty() {
-        let examples: Vec<&str> = result
-            .missing
-            .iter()
-            .take(3)
-            .map(|(name, _)| name.as_str())
-            .collect();
-        return Err(FidError::Missing {
-            path: path.to_path_buf(),
-            count: result.missing.len(),
-            examples: examples.join(", "),
-        });
-    }
-    Ok(model)
+    let path_buf = path.to_path_buf();
+    load_torch_state_dict(InceptionV3::init(device), path, &FROM_PYTORCH).map_err(|e| match e {
+        TorchLoadError::NotFound => FidError::NotFound { path: path_buf },
+        TorchLoadError::UnknownFormat => FidError::UnknownFormat { path: path_buf },
+        TorchLoadError::Load(message) => FidError::Load {
+            path: path_buf,
+            message,
+        },
+        TorchLoadError::Missing { count, examples } => FidError::Missing {
+            path: path_buf,
+            count,
+            examples,
+        },
+    })
 }
 
 /// Resizes an RGB image to `size x size` bilinearly with half-pixel centres and scales it to

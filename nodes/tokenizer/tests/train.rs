@@ -375,3 +375,58 @@ fn the_gan_switches_on_at_the_configured_step() {
         "the discriminator did not learn"
     );
 }
+
+#[test]
+fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
+    let (config, model) = configs();
+    let frames = frames().clone();
+    // Off without weights: the step reports no perceptual term.
+    let mut off = Trainer::new(
+        config.clone(),
+        model.clone(),
+        &Device::flex(),
+        frames.clone(),
+        frames.clone(),
+    )
+    .expect("trainer");
+    assert_eq!(off.train_step().expect("step").loss_perceptual, None);
+
+    let mut missing = config.clone();
+    missing.perceptual_weights = Some("/nonexistent/vgg16-397923af.pth".into());
+    let message = match Trainer::new(
+        missing,
+        model.clone(),
+        &Device::flex(),
+        frames.clone(),
+        frames.clone(),
+    ) {
+        Err(error) => error.to_string(),
+        Ok(_) => panic!("a missing VGG16 file was accepted"),
+    };
+    assert!(
+        message.contains("/nonexistent/vgg16-397923af.pth"),
+        "{message}"
+    );
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let vgg = dir.path().join("vgg16.safetensors");
+    bevworld_tokenizer::train::perceptual::save_torchvision_layout(
+        &bevworld_tokenizer::train::perceptual::Vgg16Features::init_unloaded(&Device::flex()),
+        &vgg,
+    )
+    .expect("save");
+    let mut with = config;
+    with.perceptual_weights = Some(vgg);
+    let mut on =
+        Trainer::new(with, model, &Device::flex(), frames.clone(), frames).expect("trainer");
+    let report = on.train_step().expect("step");
+    let term = report.loss_perceptual.expect("perceptual term");
+    let w = &on.config.loss;
+    let expected =
+        w.rgb_l1 * report.loss_rgb + w.lidar_l1 * report.loss_lidar + w.perceptual * term;
+    assert!(
+        term > 0.0 && (report.loss - expected).abs() < 1e-4 * (1.0 + expected),
+        "{} vs {expected}",
+        report.loss
+    );
+}

@@ -39,6 +39,8 @@ pub struct LossWeights {
     pub rgb_l1: f64,
     /// L1 between rendered depth and LiDAR range, in metres.
     pub lidar_l1: f64,
+    /// The perceptual (VGG16) term; needs `perceptual_weights`, else it is off with a warning.
+    pub perceptual: f64,
     /// The generator's adversarial (hinge) term on the rendered cameras.
     pub gan_generator: f64,
     /// The discriminator's own hinge loss.
@@ -83,6 +85,10 @@ pub struct TrainConfig {
     pub validate_every: usize,
     /// Validation frames evaluated each time (the first ones of the validation set).
     pub validation_frames: usize,
+    /// torchvision's VGG16 weights for the perceptual term (relative to this file); absent
+    /// turns the term off.
+    #[serde(default)]
+    pub perceptual_weights: Option<PathBuf>,
     pub data: DataConfig,
 }
 
@@ -105,7 +111,9 @@ impl TrainConfig {
                 problems,
             });
         }
-        config.model = path.parent().unwrap_or(Path::new(".")).join(&config.model);
+        let folder = path.parent().unwrap_or(Path::new("."));
+        config.model = folder.join(&config.model);
+        config.perceptual_weights = config.perceptual_weights.map(|p| folder.join(p));
         let model = TokenizerConfig::from_yaml_file(&config.model)?;
         Ok((config, model))
     }

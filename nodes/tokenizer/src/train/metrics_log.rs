@@ -21,6 +21,7 @@ pub struct Row {
     pub loss: Option<f64>,
     pub loss_rgb: Option<f64>,
     pub loss_lidar: Option<f64>,
+    pub loss_perceptual: Option<f64>,
     pub loss_gan: Option<f64>,
     pub loss_discriminator: Option<f64>,
     pub grad_norm: Option<f64>,
@@ -57,13 +58,14 @@ impl MetricsLog {
     pub fn append(&mut self, row: &Row) -> std::io::Result<()> {
         let f = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         let line = format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{:.1}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1}\n",
             row.step,
             row.phase,
             f(row.lr),
             f(row.loss),
             f(row.loss_rgb),
             f(row.loss_lidar),
+            f(row.loss_perceptual),
             f(row.loss_gan),
             f(row.loss_discriminator),
             f(row.grad_norm),

@@ -8,6 +8,7 @@ pub mod data;
 pub mod discriminator;
 pub mod losses;
 pub mod metrics_log;
+pub mod perceptual;
 pub mod plot;
 pub mod rng;
 pub mod schedule;

@@ -25,6 +25,7 @@ use crate::train::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
 };
 use crate::train::losses::l1;
+use crate::train::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG16};
 use crate::train::rng::SplitMix64;
 use crate::train::schedule::learning_rate;
 use crate::weights::{WeightsError, load_module, load_weights, save_module, save_weights};
@@ -54,6 +55,8 @@ pub enum TrainError {
     Weights(#[from] WeightsError),
     #[error("{path}: {message}")]
     Io { path: PathBuf, message: String },
+    #[error(transparent)]
+    Perceptual(#[from] PerceptualError),
     #[error("no training frames")]
     NoFrames,
 }
@@ -67,6 +70,8 @@ pub struct StepReport {
     pub loss: f64,
     pub loss_rgb: f64,
     pub loss_lidar: f64,
+    /// The perceptual term, when VGG16 weights were given.
+    pub loss_perceptual: Option<f64>,
     /// The generator's adversarial term and the discriminator's loss, once the GAN started.
     pub loss_gan: Option<f64>,
     pub loss_discriminator: Option<f64>,
@@ -91,6 +96,7 @@ pub struct Trainer {
     model: Tokenizer,
     optimizer: burn::optim::ModuleOptimizer,
     discriminator: PatchDiscriminator,
+    perceptual: Option<PerceptualLoss>,
     discriminator_optimizer: burn::optim::ModuleOptimizer,
     /// The autodiff device; validation runs on its inner device.
     device: Device,
@@ -134,10 +140,21 @@ impl Trainer {
         let model = model_config.init(&device);
         let discriminator =
             PatchDiscriminatorConfig::new(config.loss.discriminator_channels).init(&device);
+        let perceptual = match (&config.perceptual_weights, config.loss.perceptual > 0.0) {
+            (Some(path), true) => Some(PerceptualLoss::from_file(path, &device)?.no_grad()),
+            (None, true) => {
+                tracing::warn!(
+                    "the perceptual loss is off: no VGG16 weights were given (set `perceptual_weights` to torchvision's {TORCHVISION_VGG16}); it never runs on random weights"
+                );
+                None
+            }
+            (_, false) => None,
+        };
         Ok(Self {
             optimizer: Self::optimizer(&config),
             discriminator_optimizer: Self::optimizer(&config),
             discriminator,
+            perceptual,
             rng: SplitMix64::new(config.seed ^ 0x5eed_0f_da7a),
             step: 0,
             depths: sample_depths(
@@ -274,6 +291,12 @@ impl Trainer {
         let weights = &self.config.loss;
         let mut loss = parts.loss_rgb.clone().mul_scalar(weights.rgb_l1)
             + parts.loss_lidar.clone().mul_scalar(weights.lidar_l1);
+        let mut loss_perceptual = None;
+        if let Some(perceptual) = &self.perceptual {
+            let term = perceptual.forward(parts.rgb.clone(), parts.target.clone());
+            loss_perceptual = Some(scalar(term.clone().detach()));
+            loss = loss + term.mul_scalar(weights.perceptual);
+        }
         let mut loss_gan = None;
         if gan {
             let adversarial = generator_hinge(self.discriminator.forward(parts.rgb.clone()));
@@ -353,6 +376,7 @@ impl Trainer {
             loss: value,
             loss_rgb: rgb,
             loss_lidar: lidar,
+            loss_perceptual,
             loss_gan,
             loss_discriminator,
             grad_norm,
