@@ -3,24 +3,11 @@
 //! latent and the fused feature; bad model params fail before any frame flows, naming the field.
 //! The model is untrained here, so the tests check plumbing and invariants, not quality.
 
+mod common;
+
+use common::{bevworld, bevworld_owned, reconstruct_outputs, text};
+
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn bevworld(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bevworld"))
-        .args(args)
-        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("bevworld runs")
-}
-
-fn text(output: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    )
-}
 
 /// One synthetic scene of 1 s (2 keyframes) with small cameras and a sparse LiDAR.
 fn synth_small(out: &Path) {
@@ -59,21 +46,10 @@ fn run_reconstruct(data: &Path, out: &Path, extra: &[&str]) -> serde_json::Value
         metrics.display().to_string(),
         "--set".into(),
         format!("source.data={}", data.display()),
-        "--set".into(),
-        format!("metrics.csv={}", out.join("metrics.csv").display()),
     ];
-    for sink in [
-        "inputs",
-        "reconstructions",
-        "pairs",
-        "input_sweep",
-        "rendered_sweep",
-    ] {
-        args.push("--set".into());
-        args.push(format!("{sink}.out={}", out.display()));
-    }
+    args.extend(reconstruct_outputs(out));
     args.extend(extra.iter().map(|s| s.to_string()));
-    let output = bevworld(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let output = bevworld_owned(&args);
     assert!(output.status.success(), "{}", text(&output));
     serde_json::from_slice(&std::fs::read(&metrics).expect("metrics file")).expect("json")
 }
@@ -226,7 +202,7 @@ fn bad_model_params_fail_before_any_frame_naming_the_field() {
             args.push("--set".into());
             args.push(set.clone());
         }
-        let output = bevworld(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        let output = bevworld_owned(&args);
         assert!(!output.status.success(), "{sets:?} was accepted");
         let message = text(&output);
         for word in expected {

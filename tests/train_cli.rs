@@ -2,24 +2,11 @@
 //! curves and weights; the weights drive the reconstruction graph; a second run into the same
 //! folder must say `--resume`, and `--resume` continues where the checkpoint left off.
 
+mod common;
+
+use common::{bevworld, bevworld_owned, reconstruct_outputs, text};
+
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn bevworld(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bevworld"))
-        .args(args)
-        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("bevworld runs")
-}
-
-fn text(output: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    )
-}
 
 fn synth(out: &Path, seed: &str) {
     let output = bevworld(&[
@@ -70,7 +57,7 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
         }
         args
     };
-    let call = |args: Vec<String>| bevworld(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let call = |args: Vec<String>| bevworld_owned(&args);
 
     let first = call(args("3", false));
     assert!(first.status.success(), "{}", text(&first));
@@ -127,19 +114,8 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
         format!("encode.weights={}", weights.display()),
         "--set".into(),
         format!("render.weights={}", weights.display()),
-        "--set".into(),
-        format!("metrics.csv={}", out.join("m.csv").display()),
     ];
-    for sink in [
-        "inputs",
-        "reconstructions",
-        "pairs",
-        "input_sweep",
-        "rendered_sweep",
-    ] {
-        graph.push("--set".into());
-        graph.push(format!("{sink}.out={}", out.display()));
-    }
+    graph.extend(reconstruct_outputs(&out));
     let output = call(graph);
     assert!(output.status.success(), "{}", text(&output));
     assert!(!text(&output).contains("untrained"), "{}", text(&output));

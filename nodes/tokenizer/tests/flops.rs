@@ -1,17 +1,10 @@
 //! FLOP counts against hand arithmetic.
 
-use std::path::PathBuf;
+mod common;
 
-use bevworld_tokenizer::TokenizerConfig;
+use common::model_config as config;
+
 use bevworld_tokenizer::flops::{TokenizerFlops, swin_block};
-
-fn config(name: &str) -> TokenizerConfig {
-    let path = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join(format!("../../configs/models/tokenizer-{name}.yaml"));
-    TokenizerConfig::from_yaml_file(&path).expect("config")
-}
 
 #[test]
 fn a_swin_block_counts_its_four_matmul_groups_over_padded_windows() {

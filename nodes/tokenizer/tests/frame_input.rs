@@ -2,36 +2,19 @@
 //! the render rays with the encoder's projection, LiDAR rays that rebuild the sweep, and clear
 //! errors for frames and pillars that do not fit the model.
 
-use std::path::PathBuf;
+mod common;
+
+use common::{nuscenes_frame, tiny};
+
 use std::sync::Arc;
 
 use bevworld_pillarize::{Limits, Pillarizer};
-use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::encoder::projection::project_points;
 use bevworld_tokenizer::frame_input::{image_planes, planes_to_image};
-use bevworld_tokenizer::{FrameInputs, InputError, TokenizerConfig};
+use bevworld_tokenizer::{FrameInputs, InputError};
 use bevworld_types::{PillarGrid, Pillars, PointCloud, SensorFrame};
 use burn::prelude::*;
 use glam::{DVec3, Vec3};
-
-fn tiny() -> TokenizerConfig {
-    let path = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../../configs/models/tokenizer-tiny.yaml");
-    TokenizerConfig::from_yaml_file(&path).expect("tiny config")
-}
-
-fn nuscenes_frame() -> SensorFrame {
-    let root = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../../../shared/data/nuscenes-sample");
-    Dataset::open(&root, &DatasetOptions::default())
-        .expect("nuScenes sample")
-        .read(0)
-        .expect("frame 0")
-}
 
 /// The tiny config's pillar grid: 128 x 128 over [-80, 80) m.
 fn tiny_grid() -> PillarGrid {

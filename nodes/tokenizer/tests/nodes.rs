@@ -1,12 +1,15 @@
 //! The `encode` and `render` nodes refuse inputs that do not belong together, with errors that
 //! say what to connect or configure, and never panic.
 
+mod common;
+
+use common::nuscenes_frame;
+
 use std::path::PathBuf;
 
 use bevworld_graph::{Header, Inputs, Instant, Message, Node, Outputs, Registry, Task};
 use bevworld_pillarize::{Limits, Pillarizer};
-use bevworld_sensors::{Dataset, DatasetOptions};
-use bevworld_types::{BevFeatures, BevGrid, FrameMeta, PillarGrid, SensorFrame};
+use bevworld_types::{BevFeatures, BevGrid, FrameMeta, PillarGrid};
 
 fn header() -> Header {
     Header {
@@ -31,17 +34,6 @@ fn task(kind: &str) -> Box<dyn Task> {
         },
         Err(error) => panic!("{kind}: {}", error.message),
     }
-}
-
-fn nuscenes_frame() -> SensorFrame {
-    let root = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../../../shared/data/nuscenes-sample");
-    Dataset::open(&root, &DatasetOptions::default())
-        .expect("nuScenes sample")
-        .read(0)
-        .expect("frame 0")
 }
 
 #[test]

@@ -1,27 +1,16 @@
 //! Rays on the real nuScenes keyframe: every camera ray projects back onto its pixel centre
 //! through the frame's own calibration, and LiDAR rays rebuild the real points from their ranges.
 
-use std::path::PathBuf;
+mod common;
 
-use bevworld_sensors::{Dataset, DatasetOptions};
+use common::nuscenes_frame;
+
 use bevworld_tokenizer::render::rays::{
     VoxelPlacement, camera_rays, inclination_azimuth, lidar_rays, points_from_depths,
     sample_depths, sample_positions, spherical_direction,
 };
-use bevworld_types::SensorFrame;
 use burn::prelude::*;
 use glam::DVec3;
-
-fn nuscenes_frame() -> SensorFrame {
-    let root = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../../../shared/data/nuscenes-sample");
-    Dataset::open(&root, &DatasetOptions::default())
-        .expect("nuScenes sample")
-        .read(0)
-        .expect("frame 0")
-}
 
 #[test]
 fn camera_rays_project_back_onto_their_pixel_centres() {

@@ -3,21 +3,15 @@
 //! "occupied" features (α ≈ 1). Rays that hit the box must stop at its face; the skipping
 //! renderer must agree with the dense one while evaluating far fewer samples.
 
-use std::path::PathBuf;
+mod common;
+
+use common::tiny;
 
 use bevworld_tokenizer::render::rays::Rays;
 use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelScene};
 use bevworld_tokenizer::{Tokenizer, TokenizerConfig};
 use burn::prelude::*;
 use burn::tensor::Distribution;
-
-fn tiny() -> TokenizerConfig {
-    let path = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../../configs/models/tokenizer-tiny.yaml");
-    TokenizerConfig::from_yaml_file(&path).expect("tiny config")
-}
 
 /// Two feature vectors whose alpha logits under this model are below −20 and above +20,
 /// found among scaled random candidates (the head is piecewise linear, so large inputs

@@ -51,6 +51,11 @@ fn frames() -> &'static Vec<TrainingFrame> {
         .1
 }
 
+/// A trainer on the flex device, validating on its training frames.
+fn trainer(config: TrainConfig, model: TokenizerConfig, frames: Vec<TrainingFrame>) -> Trainer {
+    Trainer::new(config, model, &Device::flex(), frames.clone(), frames).expect("trainer")
+}
+
 /// A trainer on the first frame only, with every camera and every LiDAR ray each step: the
 /// batch is the same at every step.
 fn fixed_batch_trainer(lr: f64) -> Trainer {
@@ -62,7 +67,7 @@ fn fixed_batch_trainer(lr: f64) -> Trainer {
     config.rays.lidar_rays = usize::MAX;
     config.steps = 1000;
     let one = vec![frames()[0].clone()];
-    Trainer::new(config, model, &Device::flex(), one.clone(), one).expect("trainer")
+    trainer(config, model, one.clone())
 }
 
 #[test]
@@ -147,14 +152,7 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     let frames = frames().clone();
     let dir = tempfile::tempdir().expect("tempdir");
 
-    let mut straight = Trainer::new(
-        config.clone(),
-        model.clone(),
-        &Device::flex(),
-        frames.clone(),
-        frames.clone(),
-    )
-    .expect("trainer");
+    let mut straight = trainer(config.clone(), model.clone(), frames.clone());
     // Both runs start from the same parameters: the second loads the first's step-0 state
     // (initialisation draws from a device RNG that parallel tests share).
     let start = dir.path().join("start");
@@ -164,24 +162,16 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     }
 
     let run = dir.path().join("run");
-    let mut first = Trainer::new(
-        config.clone(),
-        model.clone(),
-        &Device::flex(),
-        frames.clone(),
-        frames.clone(),
-    )
-    .expect("trainer")
-    .resume(&start)
-    .expect("resume from step 0");
+    let mut first = trainer(config.clone(), model.clone(), frames.clone())
+        .resume(&start)
+        .expect("resume from step 0");
     first.train_step().expect("step");
     first.train_step().expect("step");
     first.save_checkpoint(&run).expect("checkpoint");
     // A later step that never reached a checkpoint is lost, as after a crash.
     first.train_step().expect("step");
     drop(first);
-    let mut resumed = Trainer::new(config, model, &Device::flex(), frames.clone(), frames)
-        .expect("trainer")
+    let mut resumed = trainer(config, model, frames.clone())
         .resume(&run)
         .expect("resume");
     assert_eq!(resumed.step(), 2);
@@ -208,14 +198,7 @@ fn a_non_finite_loss_is_refused_and_changes_nothing() {
     let (config, model) = configs();
     let mut frame = frames()[0].clone();
     frame.lidar_ranges.iter_mut().for_each(|r| *r = f32::NAN);
-    let mut trainer = Trainer::new(
-        config,
-        model,
-        &Device::flex(),
-        vec![frame.clone()],
-        vec![frame.clone()],
-    )
-    .expect("trainer");
+    let mut trainer = trainer(config, model, vec![frame.clone()]);
     let before = training_latent(&trainer, &frame);
     match trainer.train_step() {
         Err(TrainError::NonFinite { step, what, .. }) => {
@@ -333,8 +316,7 @@ fn the_gan_switches_on_at_the_configured_step() {
     config.loss.gan_start = 2;
     config.rays.lidar_rays = 128;
     let frames = frames().clone();
-    let mut trainer =
-        Trainer::new(config, model, &Device::flex(), frames.clone(), frames).expect("trainer");
+    let mut trainer = trainer(config, model, frames.clone());
     let initial = module_values(trainer.discriminator());
     for step in 1..=2 {
         assert!(!trainer.gan_active() || step > 2);
@@ -381,14 +363,7 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
     let (config, model) = configs();
     let frames = frames().clone();
     // Off without weights: the step reports no perceptual term.
-    let mut off = Trainer::new(
-        config.clone(),
-        model.clone(),
-        &Device::flex(),
-        frames.clone(),
-        frames.clone(),
-    )
-    .expect("trainer");
+    let mut off = trainer(config.clone(), model.clone(), frames.clone());
     assert_eq!(off.train_step().expect("step").loss_perceptual, None);
 
     let mut missing = config.clone();
@@ -417,8 +392,7 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
     .expect("save");
     let mut with = config;
     with.perceptual_weights = Some(vgg);
-    let mut on =
-        Trainer::new(with, model, &Device::flex(), frames.clone(), frames).expect("trainer");
+    let mut on = trainer(with, model, frames.clone());
     let report = on.train_step().expect("step");
     let term = report.loss_perceptual.expect("perceptual term");
     let w = &on.config.loss;
@@ -429,4 +403,25 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
         "{} vs {expected}",
         report.loss
     );
+}
+
+#[test]
+fn a_damaged_checkpoint_is_an_error_naming_the_file() {
+    let mut trainer = fixed_batch_trainer(1e-3);
+    trainer.train_step().expect("step");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let saved = trainer.save_checkpoint(dir.path()).expect("checkpoint");
+    std::fs::write(saved.join("state.json"), "{\"step\": \"two\"}").expect("write");
+    let message = match fixed_batch_trainer(1e-3).resume(dir.path()) {
+        Err(error) => error.to_string(),
+        Ok(_) => panic!("a damaged state.json was accepted"),
+    };
+    assert!(message.contains("state.json"), "{message}");
+    std::fs::remove_file(saved.join("model.bpk")).expect("remove");
+    std::fs::write(saved.join("state.json"), "{\"step\": 1, \"rng_state\": 5}").expect("write");
+    let message = match fixed_batch_trainer(1e-3).resume(dir.path()) {
+        Err(error) => error.to_string(),
+        Ok(_) => panic!("a checkpoint without its model was accepted"),
+    };
+    assert!(message.contains("model.bpk"), "{message}");
 }

@@ -1,17 +1,11 @@
 //! Weights round-trip exactly; a missing file or another config's weights are clear errors.
 
-use std::path::PathBuf;
+mod common;
 
-use bevworld_tokenizer::{TokenizerConfig, WeightsError, load_weights, save_weights};
+use common::tiny;
+
+use bevworld_tokenizer::{WeightsError, load_weights, save_weights};
 use burn::prelude::*;
-
-fn tiny() -> TokenizerConfig {
-    let path = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../../configs/models/tokenizer-tiny.yaml");
-    TokenizerConfig::from_yaml_file(&path).expect("tiny config")
-}
 
 fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_to_vec::<f32>().expect("f32")

@@ -1,0 +1,121 @@
+//! The `reconstruction_metrics` node on the real nuScenes keyframe: the input scored against
+//! itself gives the PSNR cap and zero Chamfer; a bad ROI preset or a rendered image of an
+//! unknown camera is a clear error, never a panic.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use bevworld_graph::{Header, Inputs, Instant, Message, Node, Registry, Sink};
+use bevworld_metrics::Roi;
+use bevworld_metrics::reconstruction_node::score_frame;
+use bevworld_sensors::{Dataset, DatasetOptions};
+use bevworld_types::{ImageSet, NamedImage, SensorFrame};
+
+fn frame() -> SensorFrame {
+    let root = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo"))
+        .join("../../../shared/data/nuscenes-sample");
+    Dataset::open(&root, &DatasetOptions::default())
+        .expect("nuScenes sample")
+        .read(0)
+        .expect("frame 0")
+}
+
+/// The frame's own images, shrunk to 112 x 64 as a render would be.
+fn inputs_as_render(frame: &SensorFrame) -> ImageSet {
+    ImageSet {
+        images: frame
+            .cameras
+            .iter()
+            .map(|c| NamedImage {
+                name: c.channel.name().into(),
+                image: Arc::new(image::imageops::resize(
+                    c.image.as_ref(),
+                    112,
+                    64,
+                    image::imageops::FilterType::Triangle,
+                )),
+            })
+            .collect(),
+    }
+}
+
+fn build(params: serde_json::Value) -> Result<Box<dyn Sink>, String> {
+    let mut registry = Registry::new();
+    bevworld_metrics::register(&mut registry);
+    match registry
+        .get("reconstruction_metrics")
+        .expect("registered")
+        .build(&params)
+    {
+        Ok(built) => match built.node {
+            Node::Sink(sink) => Ok(sink),
+            _ => Err("not a sink".into()),
+        },
+        Err(error) => Err(format!(
+            "{}: {}",
+            error.field.unwrap_or_default(),
+            error.message
+        )),
+    }
+}
+
+#[test]
+fn the_input_scored_against_itself_is_perfect() {
+    let frame = frame();
+    let scores = score_frame(
+        &frame,
+        &inputs_as_render(&frame),
+        &frame.lidar,
+        &Roi::FOUR_D_OCC,
+    )
+    .expect("scores");
+    assert_eq!(scores.psnr_db, 100.0, "identical images hit the cap");
+    assert!((scores.ssim - 1.0).abs() < 1e-9);
+    assert_eq!(scores.chamfer_m2, 0.0);
+
+    let mut sink = build(serde_json::json!({})).expect("node");
+    let header = Header {
+        seq: 0,
+        time_of_validity_us: 0,
+        entered_graph: Instant::now(),
+    };
+    let inputs = Inputs::from_messages(
+        &["frame", "images", "lidar"],
+        vec![
+            Some(Message::new(header, frame.clone())),
+            Some(Message::new(header, inputs_as_render(&frame))),
+            Some(Message::from_shared(header, Arc::clone(&frame.lidar))),
+        ],
+    );
+    sink.consume(&inputs).expect("consumed");
+    let figures = sink.report();
+    assert_eq!(figures.get("frames_scored"), Some(&1.0));
+    assert_eq!(figures.get("psnr_db_mean"), Some(&100.0));
+}
+
+#[test]
+fn bad_params_and_unknown_cameras_are_named() {
+    let message = build(serde_json::json!({"roi": "nowhere"}))
+        .err()
+        .expect("refused");
+    assert!(
+        message.starts_with("roi") && message.contains("nowhere"),
+        "{message}"
+    );
+    let message = build(serde_json::json!({"colour": true}))
+        .err()
+        .expect("refused");
+    assert!(message.contains("colour"), "{message}");
+
+    let frame = frame();
+    let mut images = inputs_as_render(&frame);
+    images.images[0].name = "CAM_ROOF".into();
+    let error =
+        score_frame(&frame, &images, &frame.lidar, &Roi::FOUR_D_OCC).expect_err("unknown camera");
+    assert!(
+        error.contains("CAM_ROOF") && error.contains(&frame.frame_token),
+        "{error}"
+    );
+    let empty = score_frame(&frame, &ImageSet::default(), &frame.lidar, &Roi::FOUR_D_OCC);
+    assert!(empty.expect_err("no images").contains("no rendered images"));
+}

@@ -1,0 +1,34 @@
+//! What several tokenizer test files need: the repository's configs and the real nuScenes
+//! keyframe beside the checkout.
+#![allow(dead_code)] // each test file uses its own part
+
+use std::path::PathBuf;
+
+use bevworld_sensors::{Dataset, DatasetOptions};
+use bevworld_tokenizer::TokenizerConfig;
+use bevworld_types::SensorFrame;
+
+/// This crate's folder, from cargo at run time (a reused build cache may have compiled the
+/// tests at another path).
+pub fn crate_dir() -> PathBuf {
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+}
+
+/// `configs/models/tokenizer-NAME.yaml`.
+pub fn model_config(name: &str) -> TokenizerConfig {
+    let path = crate_dir().join(format!("../../configs/models/tokenizer-{name}.yaml"));
+    TokenizerConfig::from_yaml_file(&path).expect("model config")
+}
+
+pub fn tiny() -> TokenizerConfig {
+    model_config("tiny")
+}
+
+/// The keyframe of `../shared/data/nuscenes-sample`.
+pub fn nuscenes_frame() -> SensorFrame {
+    let root = crate_dir().join("../../../shared/data/nuscenes-sample");
+    Dataset::open(&root, &DatasetOptions::default())
+        .expect("nuScenes sample")
+        .read(0)
+        .expect("frame 0")
+}

@@ -1,0 +1,50 @@
+//! Running the `bevworld` tool as a user does, for the end-to-end test files.
+#![allow(dead_code)] // each test file uses its own part
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The repository, from cargo at run time (a reused build cache may have compiled the tests
+/// at another path).
+pub fn repo() -> PathBuf {
+    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+}
+
+pub fn bevworld(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bevworld"))
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .expect("bevworld runs")
+}
+
+/// `bevworld` with owned arguments.
+pub fn bevworld_owned(args: &[String]) -> Output {
+    bevworld(&args.iter().map(String::as_str).collect::<Vec<_>>())
+}
+
+pub fn text(output: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    )
+}
+
+/// `--set` arguments sending every file sink of `reconstruct.yaml` to `out`.
+pub fn reconstruct_outputs(out: &Path) -> Vec<String> {
+    let mut args = Vec::new();
+    for sink in [
+        "inputs",
+        "reconstructions",
+        "pairs",
+        "input_sweep",
+        "rendered_sweep",
+    ] {
+        args.push("--set".into());
+        args.push(format!("{sink}.out={}", out.display()));
+    }
+    args.push("--set".into());
+    args.push(format!("metrics.csv={}", out.join("metrics.csv").display()));
+    args
+}
