@@ -1,5 +1,5 @@
 //! Training, checked on a tiny synthetic scene: a step lowers the loss of a fixed batch, 60
-//! dozen steps overfit one frame, a resumed run equals an uninterrupted one bit for bit, a
+//! steps overfit one frame, a resumed run equals an uninterrupted one bit for bit, a
 //! non-finite loss is refused without touching the trainable parameters, and configs, schedules and
 //! checkpoints behave as documented.
 
