@@ -7,11 +7,11 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use bevworld_tokenizer::FrameInputs;
 use bevworld_tokenizer::train::checkpoint;
 use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
 use bevworld_tokenizer::train::metrics_log::{MetricsLog, Row};
 use bevworld_tokenizer::train::{TrainConfig, Trainer};
+use bevworld_tokenizer::{FrameInputs, Modality, TokenizerConfig};
 use clap::{Args, Subcommand};
 
 #[derive(Subcommand)]
@@ -44,6 +44,11 @@ pub struct TrainTokenizerArgs {
     /// `perceptual_weights`).
     #[arg(long)]
     pub vgg: Option<PathBuf>,
+    /// Train an ablation tokenizer that reads and renders only `camera` or only `lidar`
+    /// (`camera,lidar` is the full model), overriding the model config's `modalities`. A
+    /// resumed run keeps the modalities it was started with.
+    #[arg(long, value_name = "camera|lidar|camera,lidar")]
+    pub modalities: Option<String>,
     /// Log a training row to metrics.csv every N steps.
     #[arg(long, default_value_t = 10)]
     pub log_every: usize,
@@ -56,7 +61,14 @@ pub fn run(command: &TrainCommand) -> Result<ExitCode> {
 }
 
 fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
-    let (mut config, model_config) = TrainConfig::from_yaml_file(&args.config)?;
+    let (mut config, mut model_config) = TrainConfig::from_yaml_file(&args.config)?;
+    let run_model = args.out.join("tokenizer.yaml");
+    if let Some(text) = &args.modalities {
+        model_config.modalities =
+            Modality::parse_list(text).map_err(|e| anyhow::anyhow!("--modalities: {e}"))?;
+    } else if args.resume && run_model.exists() {
+        model_config.modalities = TokenizerConfig::from_yaml_file(&run_model)?.modalities;
+    }
     if let Some(steps) = args.steps {
         config.steps = steps;
     }
@@ -111,8 +123,13 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
     }
     // The configs this run used, beside its weights.
     std::fs::copy(&args.config, args.out.join("train.yaml")).context("copying the train config")?;
-    std::fs::copy(&config.model, args.out.join("tokenizer.yaml"))
-        .context("copying the model config")?;
+    if model_config.modalities == Modality::BOTH {
+        std::fs::copy(&config.model, &run_model).context("copying the model config")?;
+    } else {
+        // An ablation model: its config as trained, so `encode` reads only its modalities.
+        std::fs::write(&run_model, model_config.to_yaml()?)
+            .with_context(|| format!("writing {}", run_model.display()))?;
+    }
     let mut log = MetricsLog::open(&args.out, args.resume.then_some(trainer.step()))
         .with_context(|| format!("opening {}/metrics.csv", args.out.display()))?;
 
@@ -135,8 +152,10 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         };
         progress.set_position(report.step as u64);
         progress.set_message(format!(
-            "loss {:.4} (rgb {:.4}, lidar {:.3} m)",
-            report.loss, report.loss_rgb, report.loss_lidar
+            "loss {:.4} (rgb {}, lidar {} m)",
+            report.loss,
+            shown(report.loss_rgb, 4),
+            shown(report.loss_lidar, 3)
         ));
         if report.step % args.log_every.max(1) == 0 {
             log.append(&Row {
@@ -144,8 +163,8 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 phase: "train",
                 lr: Some(report.lr),
                 loss: Some(report.loss),
-                loss_rgb: Some(report.loss_rgb),
-                loss_lidar: Some(report.loss_lidar),
+                loss_rgb: report.loss_rgb,
+                loss_lidar: report.loss_lidar,
                 loss_perceptual: report.loss_perceptual,
                 loss_gan: report.loss_gan,
                 loss_discriminator: report.loss_discriminator,
@@ -165,15 +184,19 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 "validation"
             );
             progress.println(format!(
-                "step {}: validation PSNR {:.2} dB, SSIM {:.3}, Chamfer {:.3} m² ({} frames)",
-                report.step, v.psnr_db, v.ssim, v.chamfer_m2, v.frames
+                "step {}: validation PSNR {} dB, SSIM {}, Chamfer {} m² ({} frames)",
+                report.step,
+                shown(v.psnr_db, 2),
+                shown(v.ssim, 3),
+                shown(v.chamfer_m2, 3),
+                v.frames
             ));
             log.append(&Row {
                 step: report.step,
                 phase: "val",
-                psnr_db: Some(v.psnr_db),
-                ssim: Some(v.ssim),
-                chamfer_m2: Some(v.chamfer_m2),
+                psnr_db: v.psnr_db,
+                ssim: v.ssim,
+                chamfer_m2: v.chamfer_m2,
                 elapsed_s: started.elapsed().as_secs_f64(),
                 ..Row::default()
             })?;
@@ -239,4 +262,9 @@ fn plot_curves(csv: &std::path::Path, png: &std::path::Path) -> Result<()> {
         ],
     )
     .with_context(|| format!("writing {}", png.display()))
+}
+
+/// A figure with `decimals` digits, or "-" for a modality the model does not render.
+fn shown(value: Option<f64>, decimals: usize) -> String {
+    value.map_or_else(|| "-".into(), |v| format!("{v:.decimals$}"))
 }

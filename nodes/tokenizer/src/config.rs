@@ -6,6 +6,7 @@ use std::path::Path;
 use burn::prelude::*;
 
 use crate::decoder::VoxelLiftConfig;
+use crate::modality::Modality;
 use crate::render::rays::VoxelPlacement;
 use crate::swin::SwinConfig;
 
@@ -50,6 +51,9 @@ pub struct TokenizerConfig {
     pub latent_channels: usize,
     pub decoder: VoxelLiftConfig,
     pub render: RenderConfig,
+    /// What the encoder reads and training renders: both, or one for the paper's modality
+    /// ablation (C→C or L→L).
+    pub modalities: Vec<Modality>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -69,6 +73,14 @@ impl TokenizerConfig {
             message: e.to_string(),
         })?;
         Self::from_yaml(&text, &shown)
+    }
+
+    /// The config as YAML, as `from_yaml` reads it back.
+    pub fn to_yaml(&self) -> Result<String, ConfigError> {
+        serde_saphyr::to_string(self).map_err(|e| ConfigError::Read {
+            path: self.name.clone(),
+            message: e.to_string(),
+        })
     }
 
     pub fn from_yaml(text: &str, origin: &str) -> Result<Self, ConfigError> {
@@ -200,6 +212,17 @@ impl TokenizerConfig {
         if self.cameras == 0 || self.fusion_heights == 0 || self.latent_channels == 0 {
             problems.push("cameras, fusion_heights and latent_channels must be positive".into());
         }
+        if self.modalities.is_empty() {
+            problems.push("modalities: needs camera, lidar, or both".into());
+        }
+        if (1..self.modalities.len()).any(|i| self.modalities[..i].contains(&self.modalities[i])) {
+            problems.push(format!("modalities: {:?} names one twice", self.modalities));
+        }
         problems
+    }
+
+    /// Whether the encoder reads the cameras and training renders them.
+    pub fn uses(&self, modality: Modality) -> bool {
+        self.modalities.contains(&modality)
     }
 }

@@ -10,6 +10,7 @@ use crate::decoder::{RgbUpsampler, RgbUpsamplerConfig, VoxelLift};
 use crate::encoder::fusion::{DeformableFusion, DeformableFusionConfig};
 use crate::encoder::{PillarNet, PillarNetConfig, scatter_to_bev};
 use crate::latent::{LatentCompress, LatentCompressConfig};
+use crate::modality::Modality;
 use crate::render::{expected_depth, expected_feature, render_weights, sample_trilinear};
 use crate::swin::SwinBackbone;
 
@@ -59,6 +60,14 @@ pub struct Tokenizer {
     upsampler: RgbUpsampler,
     #[module(skip)]
     pillar_grid: usize,
+    #[module(skip)]
+    pillar_channels: usize,
+    /// The encoder reads the cameras (fusion) and the sweep (pillars); an ablation model reads
+    /// one of them.
+    #[module(skip)]
+    reads_camera: bool,
+    #[module(skip)]
+    reads_lidar: bool,
 }
 
 impl TokenizerConfig {
@@ -88,29 +97,45 @@ impl TokenizerConfig {
             )
             .init(device),
             pillar_grid: self.bev.pillar_grid,
+            pillar_channels: self.pillar_channels,
+            reads_camera: self.uses(Modality::Camera),
+            reads_lidar: self.uses(Modality::Lidar),
         }
     }
 }
 
 impl Tokenizer {
+    /// A camera-only model reads an empty pillar grid, so its BEV queries carry no LiDAR and
+    /// learn everything from the images; a LiDAR-only model skips the cameras and the fusion.
     pub fn encode(&self, input: EncoderInput) -> Encoded {
-        let image_features = self.image_backbone.forward(input.images); // [N_c, C_img, h_i, w_i]
-        let pillars = self
-            .pillar_net
-            .forward(input.pillar_points, input.pillar_valid); // [P, C_p]
-        let bev = scatter_to_bev(
-            pillars,
-            input.pillar_cells,
-            self.pillar_grid,
-            self.pillar_grid,
-        );
+        let bev = if self.reads_lidar {
+            let pillars = self
+                .pillar_net
+                .forward(input.pillar_points, input.pillar_valid); // [P, C_p]
+            scatter_to_bev(
+                pillars,
+                input.pillar_cells,
+                self.pillar_grid,
+                self.pillar_grid,
+            )
+        } else {
+            Tensor::zeros(
+                [1, self.pillar_channels, self.pillar_grid, self.pillar_grid],
+                &input.images.device(),
+            )
+        }; // [1, C_p, G, G]
         let lidar = self.lidar_backbone.forward(bev); // [1, C, h, w]
-        let fused = self.fusion.forward(
-            lidar,
-            image_features,
-            input.reference,
-            input.reference_valid,
-        );
+        let fused = if self.reads_camera {
+            let image_features = self.image_backbone.forward(input.images); // [N_c, C_img, h_i, w_i]
+            self.fusion.forward(
+                lidar,
+                image_features,
+                input.reference,
+                input.reference_valid,
+            )
+        } else {
+            lidar
+        };
         Encoded {
             latent: self.compress.forward(fused.clone()),
             fused,

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use bevworld_tokenizer::Modality;
 use bevworld_tokenizer::config::{ConfigError, TokenizerConfig};
 
 fn model(name: &str) -> PathBuf {
@@ -61,4 +62,35 @@ fn a_broken_config_names_every_bad_field() {
             .to_string()
             .contains("absent.yaml")
     );
+}
+
+#[test]
+fn modalities_are_both_by_default_and_round_trip() {
+    let text = std::fs::read_to_string(model("tokenizer-tiny.yaml")).expect("read");
+    let config = TokenizerConfig::from_yaml(&text, "tiny.yaml").expect("tiny");
+    assert_eq!(config.modalities, Modality::BOTH);
+
+    let mut camera_only = config.clone();
+    camera_only.modalities = vec![Modality::Camera];
+    let yaml = camera_only.to_yaml().expect("yaml");
+    let back = TokenizerConfig::from_yaml(&yaml, "written.yaml").expect("read back");
+    assert_eq!(back, camera_only);
+    assert!(back.uses(Modality::Camera) && !back.uses(Modality::Lidar));
+
+    for (line, expected) in [
+        ("modalities: []", "modalities: needs"),
+        ("modalities: [lidar, lidar]", "names one twice"),
+        ("modalities: [radar]", "radar"),
+    ] {
+        let err = TokenizerConfig::from_yaml(
+            &text.replace("modalities: [camera, lidar]", line),
+            "ablation.yaml",
+        )
+        .expect_err(line)
+        .to_string();
+        assert!(
+            err.contains("ablation.yaml") && err.contains(expected),
+            "{line}: {err}"
+        );
+    }
 }

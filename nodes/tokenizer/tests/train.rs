@@ -11,8 +11,8 @@ use bevworld_tokenizer::train::checkpoint;
 use bevworld_tokenizer::train::data::{TrainingFrame, load_frames};
 use bevworld_tokenizer::train::rng::SplitMix64;
 use bevworld_tokenizer::train::schedule::learning_rate;
-use bevworld_tokenizer::train::{TrainConfig, TrainError, Trainer};
-use bevworld_tokenizer::{FrameInputs, TokenizerConfig};
+use bevworld_tokenizer::train::{TrainConfig, TrainError, Trainer, ValidationReport};
+use bevworld_tokenizer::{EncoderArrays, FrameInputs, Modality, TokenizerConfig};
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 
@@ -92,17 +92,19 @@ fn a_few_dozen_steps_overfit_one_frame() {
         trainer.train_step().expect("step");
     }
     let after = trainer.validate();
+    let psnr = |v: &ValidationReport| v.psnr_db.expect("the full model renders cameras");
+    let chamfer = |v: &ValidationReport| v.chamfer_m2.expect("the full model renders LiDAR");
     assert!(
-        after.psnr_db > before.psnr_db + 2.0,
+        psnr(&after) > psnr(&before) + 2.0,
         "PSNR {:.2} -> {:.2} dB",
-        before.psnr_db,
-        after.psnr_db
+        psnr(&before),
+        psnr(&after)
     );
     assert!(
-        after.chamfer_m2 < before.chamfer_m2,
+        chamfer(&after) < chamfer(&before),
         "Chamfer {:.2} -> {:.2} m²",
-        before.chamfer_m2,
-        after.chamfer_m2
+        chamfer(&before),
+        chamfer(&after)
     );
 }
 
@@ -344,8 +346,9 @@ fn the_gan_switches_on_at_the_configured_step() {
     );
     // The total is the weighted sum of its parts.
     let w = &trainer.config.loss;
-    let expected =
-        w.rgb_l1 * report.loss_rgb + w.lidar_l1 * report.loss_lidar + w.gan_generator * gan;
+    let expected = w.rgb_l1 * report.loss_rgb.expect("rgb")
+        + w.lidar_l1 * report.loss_lidar.expect("lidar")
+        + w.gan_generator * gan;
     assert!(
         (report.loss - expected).abs() < 1e-4 * (1.0 + expected.abs()),
         "{} vs {expected}",
@@ -396,8 +399,9 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
     let report = on.train_step().expect("step");
     let term = report.loss_perceptual.expect("perceptual term");
     let w = &on.config.loss;
-    let expected =
-        w.rgb_l1 * report.loss_rgb + w.lidar_l1 * report.loss_lidar + w.perceptual * term;
+    let expected = w.rgb_l1 * report.loss_rgb.expect("rgb")
+        + w.lidar_l1 * report.loss_lidar.expect("lidar")
+        + w.perceptual * term;
     assert!(
         term > 0.0 && (report.loss - expected).abs() < 1e-4 * (1.0 + expected),
         "{} vs {expected}",
@@ -424,4 +428,73 @@ fn a_damaged_checkpoint_is_an_error_naming_the_file() {
         Ok(_) => panic!("a checkpoint without its model was accepted"),
     };
     assert!(message.contains("model.bpk"), "{message}");
+}
+
+/// The encoder's latent (inference mode) of `arrays`.
+fn inference_latent(model: &bevworld_tokenizer::Tokenizer, arrays: &EncoderArrays) -> Vec<f32> {
+    model
+        .valid()
+        .encode(arrays.to_input(&Device::flex()))
+        .latent
+        .into_data()
+        .try_to_vec::<f32>()
+        .expect("latent")
+}
+
+#[test]
+fn an_ablation_model_reads_and_renders_only_its_modality() {
+    let (config, full) = configs();
+    let (first, second) = (&frames()[0].encoder, &frames()[1].encoder);
+    // The first frame with the second frame's sweep, and with the second frame's images.
+    let mut other_sweep = first.clone();
+    other_sweep.pillar_slots = second.pillar_slots;
+    other_sweep.pillar_points = second.pillar_points.clone();
+    other_sweep.pillar_valid = second.pillar_valid.clone();
+    other_sweep.pillar_cells = second.pillar_cells.clone();
+    let mut other_images = first.clone();
+    other_images.images = second.images.clone();
+
+    for (modalities, renders_camera) in [
+        (vec![Modality::Camera], true),
+        (vec![Modality::Lidar], false),
+    ] {
+        let mut model = full.clone();
+        model.modalities = modalities.clone();
+        let mut trainer = trainer(config.clone(), model, frames().clone());
+        let report = trainer.train_step().expect("step");
+        assert_eq!(report.loss_rgb.is_some(), renders_camera, "{modalities:?}");
+        assert_eq!(
+            report.loss_lidar.is_some(),
+            !renders_camera,
+            "{modalities:?}"
+        );
+        let w = &trainer.config.loss;
+        let expected = report.loss_rgb.map_or(0.0, |l| w.rgb_l1 * l)
+            + report.loss_lidar.map_or(0.0, |l| w.lidar_l1 * l);
+        assert!(
+            (report.loss - expected).abs() < 1e-5,
+            "{} vs {expected}",
+            report.loss
+        );
+        let v = trainer.validate();
+        assert_eq!(v.psnr_db.is_some(), renders_camera);
+        assert_eq!(v.chamfer_m2.is_some(), !renders_camera);
+
+        // The encoder ignores the other sensor entirely: swapping it changes nothing, while
+        // swapping its own sensor does.
+        let latent = inference_latent(trainer.model(), first);
+        let (ignored, read) = if renders_camera {
+            (&other_sweep, &other_images)
+        } else {
+            (&other_images, &other_sweep)
+        };
+        assert!(
+            latent == inference_latent(trainer.model(), ignored),
+            "{modalities:?} reads the other sensor"
+        );
+        assert!(
+            latent != inference_latent(trainer.model(), read),
+            "{modalities:?} ignores its own sensor"
+        );
+    }
 }

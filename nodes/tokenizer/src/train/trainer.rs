@@ -14,6 +14,7 @@ use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
 
 use crate::config::TokenizerConfig;
+use crate::modality::Modality;
 use crate::model::Tokenizer;
 use crate::render::VoxelScene;
 use crate::render::rays::{VoxelPlacement, points_from_depths, sample_depths, sample_positions};
@@ -30,13 +31,18 @@ use crate::train::rng::SplitMix64;
 use crate::train::schedule::learning_rate;
 use crate::weights::{WeightsError, load_module, load_weights, save_module, save_weights};
 
-/// One step's rendered cameras, their targets, and the reconstruction losses.
-struct StepLosses {
+/// One step's rendered cameras, their targets and L1 loss.
+struct CameraLosses {
     /// `[k, 3, H, W]` in [0, 1].
     rgb: Tensor<4>,
     target: Tensor<4>,
     loss_rgb: Tensor<1>,
-    loss_lidar: Tensor<1>,
+}
+
+/// The reconstruction losses of the modalities the model renders.
+struct StepLosses {
+    camera: Option<CameraLosses>,
+    loss_lidar: Option<Tensor<1>>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -68,8 +74,9 @@ pub struct StepReport {
     pub step: usize,
     pub lr: f64,
     pub loss: f64,
-    pub loss_rgb: f64,
-    pub loss_lidar: f64,
+    /// The L1 terms of the modalities the model renders (`modalities`).
+    pub loss_rgb: Option<f64>,
+    pub loss_lidar: Option<f64>,
     /// The perceptual term, when VGG16 weights were given.
     pub loss_perceptual: Option<f64>,
     /// The generator's adversarial term and the discriminator's loss, once the GAN started.
@@ -83,11 +90,13 @@ pub struct StepReport {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ValidationReport {
     pub frames: usize,
-    /// Mean over cameras and frames, images in [0, 1] at the model's size.
-    pub psnr_db: f64,
-    pub ssim: f64,
-    /// Mean over frames, 4D-Occ ROI, rendered depth along the real rays.
-    pub chamfer_m2: f64,
+    /// Mean over cameras and frames, images in [0, 1] at the model's size; `None` for a model
+    /// that does not render cameras.
+    pub psnr_db: Option<f64>,
+    pub ssim: Option<f64>,
+    /// Mean over frames, 4D-Occ ROI, rendered depth along the real rays; `None` for a model
+    /// that does not render LiDAR.
+    pub chamfer_m2: Option<f64>,
 }
 
 pub struct Trainer {
@@ -218,7 +227,8 @@ impl Trainer {
     /// The loss of one drawn frame and ray set, and its parts.
     fn losses(&mut self) -> StepLosses {
         let device = self.device.clone();
-        let frame = &self.train[self.rng.below(self.train.len())];
+        let frame_index = self.rng.below(self.train.len());
+        let frame = &self.train[frame_index];
         let latent = self.model.encode(frame.encoder.to_input(&device)).latent;
         let voxels = self.model.voxels(latent);
         let depth_row = Tensor::<2>::from_data(
@@ -226,7 +236,26 @@ impl Trainer {
             &device,
         );
 
-        // Whole cameras: the upsampler is a CNN and needs each camera's full ray grid.
+        let camera = self
+            .model_config
+            .uses(Modality::Camera)
+            .then(|| self.camera_losses(frame_index, voxels.clone(), depth_row.clone()));
+        let loss_lidar = self
+            .model_config
+            .uses(Modality::Lidar)
+            .then(|| self.lidar_loss(frame_index, voxels, depth_row));
+        StepLosses { camera, loss_lidar }
+    }
+
+    /// Renders whole cameras: the upsampler is a CNN and needs each camera's full ray grid.
+    fn camera_losses(
+        &mut self,
+        frame_index: usize,
+        voxels: Tensor<5>,
+        depth_row: Tensor<2>,
+    ) -> CameraLosses {
+        let device = self.device.clone();
+        let frame = &self.train[frame_index];
         let rays = &frame.rays;
         let per_camera = rays.rows * rays.columns;
         let cameras = self
@@ -238,12 +267,9 @@ impl Trainer {
             .collect();
         let camera_rays = rays.camera.subset(&indices);
         let positions = sample_positions(&camera_rays, &self.depths, &self.placement, &device);
-        let rendered = self.model.render_rays(
-            voxels.clone(),
-            positions,
-            camera_rays.len(),
-            depth_row.clone(),
-        );
+        let rendered = self
+            .model
+            .render_rays(voxels, positions, camera_rays.len(), depth_row);
         let rgb = self
             .model
             .camera_rgb(rendered.features, cameras.len(), rays.rows, rays.columns);
@@ -260,59 +286,74 @@ impl Trainer {
         let target =
             Tensor::<4>::from_data(TensorData::new(target, [cameras.len(), 3, h, w]), &device);
         let loss_rgb = l1(rgb.clone(), target.clone());
-
-        let chosen = self
-            .rng
-            .choose(frame.lidar.len(), self.config.rays.lidar_rays);
-        let loss_lidar = if chosen.is_empty() {
-            Tensor::<1>::zeros([1], &device)
-        } else {
-            let lidar_rays = frame.lidar.subset(&chosen);
-            let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
-            let positions = sample_positions(&lidar_rays, &self.depths, &self.placement, &device);
-            let rendered = self
-                .model
-                .render_rays(voxels, positions, lidar_rays.len(), depth_row);
-            let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), &device);
-            l1(rendered.depth, target)
-        };
-        StepLosses {
+        CameraLosses {
             rgb,
             target,
             loss_rgb,
-            loss_lidar,
         }
+    }
+
+    /// L1 on the rendered depth along a random subset of the sweep's rays.
+    fn lidar_loss(
+        &mut self,
+        frame_index: usize,
+        voxels: Tensor<5>,
+        depth_row: Tensor<2>,
+    ) -> Tensor<1> {
+        let device = self.device.clone();
+        let frame = &self.train[frame_index];
+        let chosen = self
+            .rng
+            .choose(frame.lidar.len(), self.config.rays.lidar_rays);
+        if chosen.is_empty() {
+            return Tensor::<1>::zeros([1], &device);
+        }
+        let lidar_rays = frame.lidar.subset(&chosen);
+        let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
+        let positions = sample_positions(&lidar_rays, &self.depths, &self.placement, &device);
+        let rendered = self
+            .model
+            .render_rays(voxels, positions, lidar_rays.len(), depth_row);
+        let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), &device);
+        l1(rendered.depth, target)
     }
 
     /// One optimiser step.
     pub fn train_step(&mut self) -> Result<StepReport, TrainError> {
-        let gan = self.gan_active();
+        // The GAN judges camera images: a LiDAR-only model has none.
+        let gan = self.gan_active() && self.model_config.uses(Modality::Camera);
         let parts = self.losses();
         let weights = &self.config.loss;
-        let mut loss = parts.loss_rgb.clone().mul_scalar(weights.rgb_l1)
-            + parts.loss_lidar.clone().mul_scalar(weights.lidar_l1);
+        let mut loss = Tensor::<1>::zeros([1], &self.device);
+        let (mut rgb, mut lidar) = (None, None);
+        if let Some(term) = &parts.loss_lidar {
+            lidar = Some(scalar(term.clone().detach()));
+            loss = loss + term.clone().mul_scalar(weights.lidar_l1);
+        }
         let mut loss_perceptual = None;
-        if let Some(perceptual) = &self.perceptual {
-            let term = perceptual.forward(parts.rgb.clone(), parts.target.clone());
-            loss_perceptual = Some(scalar(term.clone().detach()));
-            loss = loss + term.mul_scalar(weights.perceptual);
-        }
         let mut loss_gan = None;
-        if gan {
-            let adversarial = generator_hinge(self.discriminator.forward(parts.rgb.clone()));
-            loss_gan = Some(scalar(adversarial.clone().detach()));
-            loss = loss + adversarial.mul_scalar(weights.gan_generator);
+        if let Some(camera) = &parts.camera {
+            rgb = Some(scalar(camera.loss_rgb.clone().detach()));
+            loss = loss + camera.loss_rgb.clone().mul_scalar(weights.rgb_l1);
+            if let Some(perceptual) = &self.perceptual {
+                let term = perceptual.forward(camera.rgb.clone(), camera.target.clone());
+                loss_perceptual = Some(scalar(term.clone().detach()));
+                loss = loss + term.mul_scalar(weights.perceptual);
+            }
+            if gan {
+                let adversarial = generator_hinge(self.discriminator.forward(camera.rgb.clone()));
+                loss_gan = Some(scalar(adversarial.clone().detach()));
+                loss = loss + adversarial.mul_scalar(weights.gan_generator);
+            }
         }
-        let (value, rgb, lidar) = (
-            scalar(loss.clone()),
-            scalar(parts.loss_rgb.detach()),
-            scalar(parts.loss_lidar.detach()),
-        );
+        let value = scalar(loss.clone());
         if !value.is_finite() {
-            let what = if !rgb.is_finite() {
+            let what = if !rgb.is_none_or(f64::is_finite) {
                 "RGB loss"
-            } else {
+            } else if !lidar.is_none_or(f64::is_finite) {
                 "LiDAR loss"
+            } else {
+                "perceptual or GAN loss"
             };
             return Err(TrainError::NonFinite {
                 step: self.step + 1,
@@ -345,9 +386,9 @@ impl Trainer {
 
         // The discriminator learns from the same images, the render detached from the tokenizer.
         let mut loss_discriminator = None;
-        if gan {
-            let real = self.discriminator.forward(parts.target);
-            let fake = self.discriminator.forward(parts.rgb.detach());
+        if let (true, Some(camera)) = (gan, parts.camera) {
+            let real = self.discriminator.forward(camera.target);
+            let fake = self.discriminator.forward(camera.rgb.detach());
             let d_loss =
                 discriminator_hinge(real, fake).mul_scalar(self.config.loss.gan_discriminator);
             let d_value = scalar(d_loss.clone());
@@ -395,55 +436,80 @@ impl Trainer {
             .collect();
         let (mut psnr_sum, mut ssim_sum, mut images) = (0.0, 0.0, 0usize);
         let mut chamfer_sum = 0.0;
+        let (cameras, lidar) = (
+            self.model_config.uses(Modality::Camera),
+            self.model_config.uses(Modality::Lidar),
+        );
         for frame in &frames {
             let latent = model.encode(frame.encoder.to_input(&device)).latent;
             let scene = VoxelScene::new(&model, &self.model_config, model.voxels(latent));
-            let rays = &frame.rays;
-            let camera = scene.render_dense(&rays.camera);
-            let rgb = model
-                .camera_rgb(
-                    camera.features_tensor(0, camera.rays(), &device),
-                    rays.cameras,
-                    rays.rows,
-                    rays.columns,
-                )
-                .into_data()
-                .try_to_vec::<f32>()
-                .unwrap_or_default();
-            let [_, _, h, w] = frame.encoder.image_shape;
-            let plane = 3 * h * w;
-            for c in 0..rays.cameras {
-                let planes = |data| Planes {
-                    data,
-                    channels: 3,
-                    height: h,
-                    width: w,
-                };
-                let (a, b) = (
-                    planes(&rgb[c * plane..(c + 1) * plane]),
-                    planes(&frame.encoder.images[c * plane..(c + 1) * plane]),
-                );
-                if let (Ok(p), Ok(s)) = (psnr(&a, &b, 1.0), ssim(&a, &b, 1.0)) {
-                    psnr_sum += p.min(100.0);
-                    ssim_sum += s;
-                    images += 1;
-                }
+            if cameras {
+                let (p, s, n) = self.camera_scores(&model, &scene, frame);
+                psnr_sum += p;
+                ssim_sum += s;
+                images += n;
             }
-            let lidar = scene.render_dense(&frame.lidar);
-            let to_f64 = |p: &[f32; 3]| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
-            let predicted: Vec<[f64; 3]> = points_from_depths(&frame.lidar, &lidar.depth)
-                .iter()
-                .map(to_f64)
-                .collect();
-            let truth: Vec<[f64; 3]> = frame.lidar_points.iter().map(to_f64).collect();
-            chamfer_sum += chamfer_in_roi(&predicted, &truth, &Roi::FOUR_D_OCC).chamfer;
+            if lidar {
+                let rendered = scene.render_dense(&frame.lidar);
+                let to_f64 = |p: &[f32; 3]| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
+                let predicted: Vec<[f64; 3]> = points_from_depths(&frame.lidar, &rendered.depth)
+                    .iter()
+                    .map(to_f64)
+                    .collect();
+                let truth: Vec<[f64; 3]> = frame.lidar_points.iter().map(to_f64).collect();
+                chamfer_sum += chamfer_in_roi(&predicted, &truth, &Roi::FOUR_D_OCC).chamfer;
+            }
         }
+        let n = frames.len().max(1) as f64;
         ValidationReport {
             frames: frames.len(),
-            psnr_db: psnr_sum / images.max(1) as f64,
-            ssim: ssim_sum / images.max(1) as f64,
-            chamfer_m2: chamfer_sum / frames.len().max(1) as f64,
+            psnr_db: cameras.then(|| psnr_sum / images.max(1) as f64),
+            ssim: cameras.then(|| ssim_sum / images.max(1) as f64),
+            chamfer_m2: lidar.then(|| chamfer_sum / n),
         }
+    }
+
+    /// Summed PSNR and SSIM over one frame's cameras, and how many cameras were scored.
+    fn camera_scores(
+        &self,
+        model: &Tokenizer,
+        scene: &VoxelScene,
+        frame: &TrainingFrame,
+    ) -> (f64, f64, usize) {
+        let device = self.device.clone().inner();
+        let (mut psnr_sum, mut ssim_sum, mut images) = (0.0, 0.0, 0usize);
+        let rays = &frame.rays;
+        let camera = scene.render_dense(&rays.camera);
+        let rgb = model
+            .camera_rgb(
+                camera.features_tensor(0, camera.rays(), &device),
+                rays.cameras,
+                rays.rows,
+                rays.columns,
+            )
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap_or_default();
+        let [_, _, h, w] = frame.encoder.image_shape;
+        let plane = 3 * h * w;
+        for c in 0..rays.cameras {
+            let planes = |data| Planes {
+                data,
+                channels: 3,
+                height: h,
+                width: w,
+            };
+            let (a, b) = (
+                planes(&rgb[c * plane..(c + 1) * plane]),
+                planes(&frame.encoder.images[c * plane..(c + 1) * plane]),
+            );
+            if let (Ok(p), Ok(s)) = (psnr(&a, &b, 1.0), ssim(&a, &b, 1.0)) {
+                psnr_sum += p.min(100.0);
+                ssim_sum += s;
+                images += 1;
+            }
+        }
+        (psnr_sum, ssim_sum, images)
     }
 
     /// Writes a checkpoint of the current state into `run`.
