@@ -160,8 +160,8 @@ fn export_features_writes_the_latent_and_the_fused_feature() {
         assert!(values.iter().all(|v| v.is_finite()));
         shape
     };
-    assert_eq!(npy(&out), vec![4, 32, 32]);
-    assert_eq!(npy(&out.join("fused")), vec![32, 32, 32]);
+    assert_eq!(npy(&out), vec![4, 64, 64]);
+    assert_eq!(npy(&out.join("fused")), vec![32, 64, 64]);
 }
 
 #[test]
@@ -273,7 +273,8 @@ fn tokenizer_stats_matches_the_latents_it_summarises() {
             .into_data()
             .try_to_vec::<f32>()
             .expect("latent");
-        for (c, plane) in latent.chunks(32 * 32).enumerate() {
+        let cells = config.latent_size() * config.latent_size();
+        for (c, plane) in latent.chunks(cells).enumerate() {
             values[c].extend(plane.iter().map(|&v| f64::from(v)));
         }
     }

@@ -120,3 +120,89 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     assert!(output.status.success(), "{}", text(&output));
     assert!(!text(&output).contains("untrained"), "{}", text(&output));
 }
+
+#[test]
+fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    synth(&data, "2");
+    let args = |extra: &[&str]| {
+        let mut args: Vec<String> = [
+            "train",
+            "tokenizer",
+            "--out",
+            run.to_str().expect("utf-8"),
+            "--data",
+            data.to_str().expect("utf-8"),
+            "--val",
+            data.to_str().expect("utf-8"),
+            "--steps",
+            "10",
+            "--log-every",
+            "1",
+        ]
+        .map(String::from)
+        .to_vec();
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args
+    };
+    let rows = || -> Vec<Vec<String>> {
+        std::fs::read_to_string(run.join("metrics.csv"))
+            .expect("csv")
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(String::from).collect())
+            .collect()
+    };
+
+    // L→L: no PSNR is measured, so requiring one fails; the run still ends at step 2 of 10.
+    let first = bevworld_owned(&args(&[
+        "--until",
+        "2",
+        "--modalities",
+        "lidar",
+        "--require-psnr",
+        "10",
+    ]));
+    assert_eq!(first.status.code(), Some(1), "{}", text(&first));
+    assert!(
+        text(&first).contains("target missed: PSNR ≥ 10 dB required, none measured"),
+        "{}",
+        text(&first)
+    );
+    let logged = rows();
+    let steps: Vec<&str> = logged.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(steps, ["1", "2", "2"]);
+    let val = &logged[2];
+    // psnr_db (column 10) is empty, chamfer_m2 (column 12) measured.
+    assert_eq!((val[1].as_str(), val[10].as_str()), ("val", ""));
+    assert!(val[12].parse::<f64>().is_ok_and(|c| c > 0.0), "{val:?}");
+    let model = std::fs::read_to_string(run.join("tokenizer.yaml")).expect("model config");
+    assert!(
+        model.contains("lidar") && !model.contains("camera"),
+        "{model}"
+    );
+
+    // Resumed without --modalities, the run stays L→L; a loose Chamfer bound passes.
+    let second = bevworld_owned(&args(&[
+        "--resume",
+        "--until",
+        "3",
+        "--require-chamfer",
+        "1e9",
+    ]));
+    assert!(second.status.success(), "{}", text(&second));
+    let last = rows().pop().expect("row");
+    assert_eq!(
+        (last[0].as_str(), last[1].as_str(), last[10].as_str()),
+        ("3", "val", "")
+    );
+
+    let bad = bevworld_owned(&args(&["--modalities", "radar"]));
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(
+        text(&bad).contains("--modalities: unknown modality 'radar'"),
+        "{}",
+        text(&bad)
+    );
+}

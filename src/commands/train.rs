@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use bevworld_tokenizer::train::checkpoint;
 use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
 use bevworld_tokenizer::train::metrics_log::{MetricsLog, Row};
-use bevworld_tokenizer::train::{TrainConfig, Trainer};
+use bevworld_tokenizer::train::{TrainConfig, Trainer, ValidationReport};
 use bevworld_tokenizer::{FrameInputs, Modality, TokenizerConfig};
 use clap::{Args, Subcommand};
 
@@ -34,6 +34,10 @@ pub struct TrainTokenizerArgs {
     /// Override the config's step count.
     #[arg(long)]
     pub steps: Option<usize>,
+    /// Stop after this step, keeping the config's schedule: the run equals the first N steps
+    /// of the full run (for ablations and quick comparisons), and `--resume` continues it.
+    #[arg(long, value_name = "STEP")]
+    pub until: Option<usize>,
     /// Train on this dataset instead of the config's synthetic training set.
     #[arg(long)]
     pub data: Option<PathBuf>,
@@ -49,6 +53,13 @@ pub struct TrainTokenizerArgs {
     /// resumed run keeps the modalities it was started with.
     #[arg(long, value_name = "camera|lidar|camera,lidar")]
     pub modalities: Option<String>,
+    /// Exit with status 1 unless the final validation PSNR reaches this many dB (an automated
+    /// quality check, e.g. the nuScenes keyframe fit's 25 dB).
+    #[arg(long, value_name = "DB")]
+    pub require_psnr: Option<f64>,
+    /// Exit with status 1 unless the final validation Chamfer is at most this many m².
+    #[arg(long, value_name = "M2")]
+    pub require_chamfer: Option<f64>,
     /// Log a training row to metrics.csv every N steps.
     #[arg(long, default_value_t = 10)]
     pub log_every: usize,
@@ -142,7 +153,9 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    while !trainer.is_done() {
+    let mut last_validation = None;
+    let stop = args.until.unwrap_or(config.steps).min(config.steps);
+    while !trainer.is_done() && trainer.step() < stop {
         let report = match trainer.train_step() {
             Ok(report) => report,
             Err(error) => {
@@ -173,9 +186,10 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 ..Row::default()
             })?;
         }
-        let last = trainer.is_done();
+        let last = trainer.is_done() || trainer.step() >= stop;
         if report.step % config.validate_every == 0 || last {
             let v = trainer.validate();
+            last_validation = Some(v);
             tracing::info!(
                 step = report.step,
                 psnr_db = v.psnr_db,
@@ -218,7 +232,44 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         log.path().display(),
         curves.display()
     );
-    Ok(ExitCode::SUCCESS)
+    let missed = missed_targets(last_validation, args.require_psnr, args.require_chamfer);
+    if missed.is_empty() {
+        return Ok(ExitCode::SUCCESS);
+    }
+    for line in &missed {
+        eprintln!("target missed: {line}");
+    }
+    Ok(ExitCode::FAILURE)
+}
+
+/// Each required figure the final validation did not reach, as a sentence.
+fn missed_targets(
+    validation: Option<ValidationReport>,
+    psnr_db: Option<f64>,
+    chamfer_m2: Option<f64>,
+) -> Vec<String> {
+    let mut missed = Vec::new();
+    let v = validation.unwrap_or(ValidationReport {
+        frames: 0,
+        psnr_db: None,
+        ssim: None,
+        chamfer_m2: None,
+    });
+    if let Some(target) = psnr_db {
+        match v.psnr_db {
+            Some(p) if p >= target => {}
+            Some(p) => missed.push(format!("PSNR {p:.2} dB < {target} dB")),
+            None => missed.push(format!("PSNR ≥ {target} dB required, none measured")),
+        }
+    }
+    if let Some(target) = chamfer_m2 {
+        match v.chamfer_m2 {
+            Some(c) if c <= target => {}
+            Some(c) => missed.push(format!("Chamfer {c:.3} m² > {target} m²")),
+            None => missed.push(format!("Chamfer ≤ {target} m² required, none measured")),
+        }
+    }
+    missed
 }
 
 /// Draws `curves.png` from `metrics.csv`: training loss (log scale, left), validation PSNR

@@ -252,16 +252,20 @@ impl FrameInputs {
         if grid.size() != (n, n)
             || !close(grid.x_range, bev.x_range)
             || !close(grid.y_range, bev.y_range)
+            || !close(grid.z_range, bev.z_range)
         {
             let (nx, ny) = grid.size();
             return Err(InputError::PillarGrid {
                 frame: frame.frame_token.clone(),
                 model: self.config.name.clone(),
                 found: format!(
-                    "{nx} x {ny} over x {:?}, y {:?}",
-                    grid.x_range, grid.y_range
+                    "{nx} x {ny} over x {:?}, y {:?}, z {:?}",
+                    grid.x_range, grid.y_range, grid.z_range
                 ),
-                expected: format!("{n} x {n} over x {:?}, y {:?}", bev.x_range, bev.y_range),
+                expected: format!(
+                    "{n} x {n} over x {:?}, y {:?}, z {:?}",
+                    bev.x_range, bev.y_range, bev.z_range
+                ),
             });
         }
         let slots = pillars.max_points_per_pillar.max(1);

@@ -31,8 +31,8 @@ fn paper_config_has_the_papers_sizes() {
 #[test]
 fn tiny_config_is_consistent() {
     let config = TokenizerConfig::from_yaml_file(&model("tokenizer-tiny.yaml")).expect("tiny");
-    assert_eq!(config.latent_size(), 32);
-    assert_eq!(config.voxel_shape(), [8, 16, 128, 128]);
+    assert_eq!(config.latent_size(), 64);
+    assert_eq!(config.voxel_shape(), [8, 32, 128, 128]);
     assert_eq!(config.image_feature_size(), [8, 14]);
 }
 
@@ -40,7 +40,7 @@ fn tiny_config_is_consistent() {
 fn a_broken_config_names_every_bad_field() {
     let text = std::fs::read_to_string(model("tokenizer-tiny.yaml")).expect("read");
     let broken = text
-        .replace("pillar_grid: 128", "pillar_grid: 130")
+        .replace("pillar_grid: 128", "pillar_grid: 129")
         .replace("heads: [2, 4]", "heads: [2, 5]")
         .replace("camera_stride: 8", "camera_stride: 6");
     let err = TokenizerConfig::from_yaml(&broken, "broken.yaml").unwrap_err();

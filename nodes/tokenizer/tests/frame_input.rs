@@ -16,7 +16,7 @@ use bevworld_types::{PillarGrid, Pillars, PointCloud, SensorFrame};
 use burn::prelude::*;
 use glam::{DVec3, Vec3};
 
-/// The tiny config's pillar grid: 128 x 128 over [-80, 80) m.
+/// The tiny config's pillar grid: 128 x 128 over [-80, 80) m, heights [-3, 15) m.
 fn tiny_grid() -> PillarGrid {
     let grid = FrameInputs::new(&tiny()).pillar_grid();
     assert_eq!(grid.size(), (128, 128));
@@ -153,6 +153,20 @@ fn frames_and_pillars_that_do_not_fit_give_errors_that_say_what_to_change() {
         "{message}"
     );
     assert!(message.contains("`grid`"), "{message}");
+
+    // The same cells over another height range: the pillar features would not be the ones the
+    // model learned from.
+    let mut low = tiny_grid();
+    low.z_range = [-4.5, 4.5];
+    let error = inputs
+        .encoder_input(&frame, &pillarize(&frame, low), &device)
+        .err()
+        .expect("height range mismatch");
+    let message = error.to_string();
+    assert!(
+        message.contains("z [-4.5, 4.5]") && message.contains("z [-3.0, 15.0]"),
+        "{message}"
+    );
 
     let mut five = frame.clone();
     five.cameras.pop();

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use bevworld_graph::{Header, Inputs, Instant, Message, Node, Outputs, Registry, Task};
 use bevworld_pillarize::{Limits, Pillarizer};
-use bevworld_types::{BevFeatures, BevGrid, FrameMeta, PillarGrid};
+use bevworld_types::{BevFeatures, BevGrid, FrameMeta};
 
 fn header() -> Header {
     Header {
@@ -39,10 +39,7 @@ fn task(kind: &str) -> Box<dyn Task> {
 #[test]
 fn encode_refuses_pillars_of_another_frame() {
     let frame = nuscenes_frame();
-    let grid = PillarGrid {
-        pillar_size: 1.25,
-        ..PillarGrid::default()
-    };
+    let grid = bevworld_tokenizer::FrameInputs::new(&common::tiny()).pillar_grid();
     let mut pillars = Pillarizer::new(grid, Limits::default()).run(&[[1.0, 2.0, 0.0, 0.5]]);
     pillars.meta.frame_token = "another-frame".into();
     let mut encode = task("encode");
@@ -118,8 +115,8 @@ fn render_refuses_latents_of_another_model_or_shape() {
         run(&mut render, latent("tokenizer-tiny", 96)).expect_err("shape")
     );
     assert!(
-        message.contains("96") && message.contains("4 x 32 x 32"),
+        message.contains("96") && message.contains("4 x 64 x 64"),
         "{message}"
     );
-    run(&mut render, latent("tokenizer-tiny", 32)).expect("a fitting latent renders");
+    run(&mut render, latent("tokenizer-tiny", 64)).expect("a fitting latent renders");
 }

@@ -5,8 +5,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-pub const HEADER: &str =
-    "step,phase,lr,loss,loss_rgb,loss_lidar,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s";
+pub const HEADER: &str = "step,phase,lr,loss,loss_rgb,loss_lidar,loss_perceptual,loss_gan,loss_discriminator,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s";
 
 pub struct MetricsLog {
     path: PathBuf,
@@ -80,5 +79,35 @@ impl MetricsLog {
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_row_has_the_headers_columns_in_order() {
+        let dir = std::env::temp_dir().join(format!("bevworld-metrics-log-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let mut log = MetricsLog::open(&dir, None).expect("open");
+        log.append(&Row {
+            step: 7,
+            phase: "val",
+            psnr_db: Some(21.5),
+            chamfer_m2: Some(0.25),
+            elapsed_s: 3.0,
+            ..Row::default()
+        })
+        .expect("append");
+        let text = std::fs::read_to_string(log.path()).expect("read");
+        let _ = std::fs::remove_dir_all(&dir);
+        let lines: Vec<Vec<&str>> = text.lines().map(|l| l.split(',').collect()).collect();
+        assert_eq!(lines[0].len(), lines[1].len(), "{text}");
+        let column = |name: &str| lines[0].iter().position(|c| *c == name).expect(name);
+        assert_eq!(lines[1][column("psnr_db")], "21.500000");
+        assert_eq!(lines[1][column("chamfer_m2")], "0.250000");
+        assert_eq!(lines[1][column("elapsed_s")], "3.0");
+        assert_eq!(lines[1][column("ssim")], "");
     }
 }
