@@ -1,7 +1,8 @@
 //! The tokenizer's graphs as a user runs them: `reconstruct.yaml` writes inputs,
 //! reconstructions, side-by-side pairs, sweeps and metrics; `export_features.yaml` exports the
 //! latent and the fused feature; bad model params fail before any frame flows, naming the field.
-//! The model is untrained here, so the tests check plumbing and invariants, not quality.
+//! The graphs run the shipped weights on tiny random scenes, so these tests check plumbing and
+//! invariants; quality is checked in `nodes/tokenizer/tests/shipped_weights.rs`.
 
 mod common;
 
@@ -148,7 +149,12 @@ fn export_features_writes_the_latent_and_the_fused_feature() {
     let frames = index["frames"].as_array().expect("frames");
     assert_eq!(frames.len(), 2);
     assert_eq!(frames[0]["model"], "tokenizer-tiny");
-    assert_eq!(frames[0]["weights_hash"], "untrained");
+    // The graph runs the shipped weights, and says so by their digest.
+    let shipped = bevworld_tokenizer::weights_digest(
+        &common::repo().join("nodes/tokenizer/weights/tokenizer-tiny.bpk"),
+    )
+    .expect("shipped weights");
+    assert_eq!(frames[0]["weights_hash"], shipped.as_str());
     let npy = |folder: &Path| -> Vec<usize> {
         let file = std::fs::read_dir(folder)
             .expect("folder")
