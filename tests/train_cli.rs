@@ -196,6 +196,15 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         ("3", "val", "")
     );
 
+    // Resuming it as another ablation is refused, naming the run's modalities.
+    let switched = bevworld_owned(&args(&["--resume", "--modalities", "camera"]));
+    assert_eq!(switched.status.code(), Some(1));
+    assert!(
+        text(&switched).contains("trained [Lidar]"),
+        "{}",
+        text(&switched)
+    );
+
     let bad = bevworld_owned(&args(&["--modalities", "radar"]));
     assert_eq!(bad.status.code(), Some(1));
     assert!(

@@ -77,8 +77,19 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
     if let Some(text) = &args.modalities {
         model_config.modalities =
             Modality::parse_list(text).map_err(|e| anyhow::anyhow!("--modalities: {e}"))?;
-    } else if args.resume && run_model.exists() {
-        model_config.modalities = TokenizerConfig::from_yaml_file(&run_model)?.modalities;
+    }
+    // A resumed run keeps the modalities it started with; naming others would silently
+    // change the experiment halfway.
+    if args.resume && run_model.exists() {
+        let started = TokenizerConfig::from_yaml_file(&run_model)?.modalities;
+        if args.modalities.is_some() && started != model_config.modalities {
+            bail!(
+                "--modalities: {} trained {:?}; resume it without --modalities, or choose another --out",
+                args.out.display(),
+                started
+            );
+        }
+        model_config.modalities = started;
     }
     if let Some(steps) = args.steps {
         config.steps = steps;

@@ -109,14 +109,7 @@ fn main() {
     let lidar_rays = rays.lidar.len();
     let total_rays = camera_rays + lidar_rays;
     let scene = VoxelScene::new(&model, &config, voxels);
-    let rgb_of = |camera: &RenderedRays| -> Vec<f32> {
-        let features = camera.features_tensor(0, camera.rays(), &device);
-        model
-            .camera_rgb(features, rays.cameras, rays.rows, rays.columns)
-            .into_data()
-            .try_to_vec::<f32>()
-            .unwrap_or_default()
-    };
+    let rgb_of = |camera: &RenderedRays| -> Vec<f32> { scene.camera_planes(camera, &rays) };
     let dense = time(3, || {
         let camera = scene.render_dense(&rays.camera);
         let lidar = scene.render_dense(&rays.lidar);

@@ -93,17 +93,7 @@ fn reconstruct(data: &Path) -> Reconstruction {
 
     let scene = VoxelScene::new(&model, &config, model.voxels(latent));
     let rays = inputs.frame_rays(&frame).expect("rays");
-    let camera = scene.render_dense(&rays.camera);
-    let rgb = model
-        .camera_rgb(
-            camera.features_tensor(0, camera.rays(), &device),
-            rays.cameras,
-            rays.rows,
-            rays.columns,
-        )
-        .into_data()
-        .try_to_vec::<f32>()
-        .expect("rgb");
+    let rgb = scene.camera_planes(&scene.render_dense(&rays.camera), &rays);
     let [height, width] = config.image_size;
     let planes = |data| Planes {
         data,

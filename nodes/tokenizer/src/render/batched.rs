@@ -5,6 +5,7 @@
 use burn::prelude::*;
 
 use crate::config::TokenizerConfig;
+use crate::frame_input::FrameRays;
 use crate::model::Tokenizer;
 use crate::render::rays::{Rays, VoxelPlacement, sample_depths, sample_positions};
 
@@ -87,6 +88,18 @@ impl<'a> VoxelScene<'a> {
 
     pub fn channels(&self) -> usize {
         self.voxels.dims()[1]
+    }
+
+    /// The RGB upsampler's images of rendered camera rays cast as `rays.camera` is: flat
+    /// `[N_c, 3, H, W]` planes in [0, 1], cameras in the frame's order.
+    pub fn camera_planes(&self, camera: &RenderedRays, rays: &FrameRays) -> Vec<f32> {
+        let device = self.voxels.device();
+        host_vec(self.model.camera_rgb(
+            camera.features_tensor(0, camera.rays(), &device),
+            rays.cameras,
+            rays.rows,
+            rays.columns,
+        ))
     }
 
     /// Renders every ray densely, all samples, `chunk` rays at a time.

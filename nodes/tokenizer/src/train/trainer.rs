@@ -444,7 +444,7 @@ impl Trainer {
             let latent = model.encode(frame.encoder.to_input(&device)).latent;
             let scene = VoxelScene::new(&model, &self.model_config, model.voxels(latent));
             if cameras {
-                let (p, s, n) = self.camera_scores(&model, &scene, frame);
+                let (p, s, n) = self.camera_scores(&scene, frame);
                 psnr_sum += p;
                 ssim_sum += s;
                 images += n;
@@ -470,26 +470,10 @@ impl Trainer {
     }
 
     /// Summed PSNR and SSIM over one frame's cameras, and how many cameras were scored.
-    fn camera_scores(
-        &self,
-        model: &Tokenizer,
-        scene: &VoxelScene,
-        frame: &TrainingFrame,
-    ) -> (f64, f64, usize) {
-        let device = self.device.clone().inner();
+    fn camera_scores(&self, scene: &VoxelScene, frame: &TrainingFrame) -> (f64, f64, usize) {
         let (mut psnr_sum, mut ssim_sum, mut images) = (0.0, 0.0, 0usize);
         let rays = &frame.rays;
-        let camera = scene.render_dense(&rays.camera);
-        let rgb = model
-            .camera_rgb(
-                camera.features_tensor(0, camera.rays(), &device),
-                rays.cameras,
-                rays.rows,
-                rays.columns,
-            )
-            .into_data()
-            .try_to_vec::<f32>()
-            .unwrap_or_default();
+        let rgb = scene.camera_planes(&scene.render_dense(&rays.camera), rays);
         let [_, _, h, w] = frame.encoder.image_shape;
         let plane = 3 * h * w;
         for c in 0..rays.cameras {
