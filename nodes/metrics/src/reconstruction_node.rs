@@ -87,7 +87,7 @@ pub fn score_frame(
     };
     let chamfer = chamfer_in_roi(
         &to_f64(lidar.ego_points()),
-        &to_f64(frame.lidar.ego_points()),
+        &to_f64(frame.lidar.scene_ego_points()),
         roi,
     );
     Ok(FrameScores {

@@ -120,9 +120,12 @@ pub struct FrameRays {
     /// The ray grid of one camera: `image_size / camera_stride`.
     pub rows: usize,
     pub columns: usize,
-    /// One ray per LiDAR point, and the point's range (the depth a perfect render returns).
+    /// One ray per LiDAR return off the ego vehicle's body, and the return's range (the depth
+    /// a perfect render returns).
     pub lidar: Rays,
     pub lidar_ranges: Vec<f32>,
+    /// Which of the sweep's points each LiDAR ray is (`PointCloud::scene_indices`).
+    pub lidar_points: Vec<usize>,
 }
 
 impl FrameInputs {
@@ -304,7 +307,8 @@ impl FrameInputs {
     }
 
     /// The rays rendering casts for this frame: every camera's 1/stride block rays, and one
-    /// ray per real LiDAR point.
+    /// ray per real LiDAR return off the ego vehicle (returns off the car itself are not the
+    /// scene, see `EgoBody`).
     pub fn frame_rays(&self, frame: &SensorFrame) -> Result<FrameRays, InputError> {
         self.check_cameras(frame)?;
         let [h, w] = self.config.image_size;
@@ -316,11 +320,13 @@ impl FrameInputs {
             camera.origins.extend(rays.origins);
             camera.directions.extend(rays.directions);
         }
-        let points: Vec<DVec3> = frame
-            .lidar
-            .points
+        let lidar_points = frame.lidar.scene_indices();
+        let points: Vec<DVec3> = lidar_points
             .iter()
-            .map(|p| DVec3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)))
+            .map(|&i| {
+                let p = &frame.lidar.points[i];
+                DVec3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z))
+            })
             .collect();
         let (lidar, lidar_ranges) = lidar_rays(&points, &frame.lidar.ego_from_lidar);
         Ok(FrameRays {
@@ -330,6 +336,7 @@ impl FrameInputs {
             columns: w / stride,
             lidar,
             lidar_ranges,
+            lidar_points,
         })
     }
 }

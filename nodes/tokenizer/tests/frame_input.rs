@@ -118,12 +118,15 @@ fn render_rays_retrace_the_encoder_projection_and_the_lidar_sweep() {
         }
     }
 
-    // LiDAR rays at the points' ranges rebuild the sweep in the ego frame.
+    // LiDAR rays at the points' ranges rebuild the sweep in the ego frame, all of it but the
+    // 8,526 returns off the car itself, and each ray names the point it came from.
     let cloud = &frame.lidar;
-    assert_eq!(rays.lidar.len(), cloud.len());
+    assert_eq!(rays.lidar.len(), cloud.len() - 8_526);
+    assert_eq!(rays.lidar_points, cloud.scene_indices());
     let rebuilt =
         bevworld_tokenizer::render::rays::points_from_depths(&rays.lidar, &rays.lidar_ranges);
-    for (p, q) in cloud.points.iter().zip(&rebuilt) {
+    for (&index, q) in rays.lidar_points.iter().zip(&rebuilt) {
+        let p = &cloud.points[index];
         let ego =
             cloud
                 .ego_from_lidar

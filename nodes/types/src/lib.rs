@@ -7,6 +7,7 @@
 pub mod action;
 pub mod bev;
 pub mod camera;
+pub mod ego_body;
 pub mod frame;
 pub mod pillars;
 pub mod point_cloud;
@@ -15,6 +16,7 @@ pub mod pose;
 pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
+pub use ego_body::EgoBody;
 pub use frame::SensorFrame;
 pub use pillars::{PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 pub use point_cloud::{LidarPoint, PointCloud};

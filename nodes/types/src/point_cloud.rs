@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::ego_body::EgoBody;
 use crate::pose::Pose;
 
 /// One return, in the sensor frame.
@@ -40,11 +41,27 @@ impl PointCloud {
         self.points.is_empty()
     }
 
+    /// Indices of the returns off the ego vehicle's body (`EgoBody::FOUR_D_OCC`): the scene.
+    pub fn scene_indices(&self) -> Vec<usize> {
+        (0..self.points.len())
+            .filter(|&i| !EgoBody::FOUR_D_OCC.contains(&self.points[i]))
+            .collect()
+    }
+
+    /// The scene's points (`scene_indices`) in the ego frame: the ground truth that Chamfer
+    /// distances compare against.
+    pub fn scene_ego_points(&self) -> Vec<[f32; 3]> {
+        self.ego_points_of(self.scene_indices().into_iter().map(|i| &self.points[i]))
+    }
+
     /// Points moved into the ego frame, as f32 [x, y, z].
     pub fn ego_points(&self) -> Vec<[f32; 3]> {
+        self.ego_points_of(self.points.iter())
+    }
+
+    fn ego_points_of<'a>(&self, points: impl Iterator<Item = &'a LidarPoint>) -> Vec<[f32; 3]> {
         let ego_from_lidar = self.ego_from_lidar;
-        self.points
-            .iter()
+        points
             .map(|p| {
                 let q = ego_from_lidar.transform_point3(glam::DVec3::new(
                     f64::from(p.x),

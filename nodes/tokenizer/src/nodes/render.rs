@@ -160,8 +160,8 @@ impl Task for RenderNode {
             .directions
             .iter()
             .zip(&lidar.depth)
-            .zip(&cloud.points)
-            .map(|((d, &depth), input)| {
+            .zip(&rays.lidar_points)
+            .map(|((d, &depth), &index)| {
                 let direction = lidar_from_ego.transform_vector3(DVec3::new(
                     d[0].into(),
                     d[1].into(),
@@ -173,7 +173,7 @@ impl Task for RenderNode {
                     y: p.y as f32,
                     z: p.z as f32,
                     intensity: 0.0,
-                    ring: input.ring,
+                    ring: cloud.points.get(index).map_or(0, |p| p.ring),
                 }
             })
             .collect();

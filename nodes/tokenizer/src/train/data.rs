@@ -33,7 +33,7 @@ pub struct TrainingFrame {
     /// LiDAR rays whose range lies inside the rendered `[near, far]`, and those ranges.
     pub lidar: Rays,
     pub lidar_ranges: Vec<f32>,
-    /// The sweep in the ego frame, for Chamfer.
+    /// The scene's returns (off the ego vehicle, see `EgoBody`) in the ego frame, for Chamfer.
     pub lidar_points: Vec<[f32; 3]>,
 }
 
@@ -116,7 +116,7 @@ pub fn load_frames(
             encoder,
             lidar: rays.lidar.subset(&inside),
             lidar_ranges: inside.iter().map(|&i| rays.lidar_ranges[i]).collect(),
-            lidar_points: frame.lidar.ego_points(),
+            lidar_points: frame.lidar.scene_ego_points(),
             rays,
         });
         progress(index + 1, count);
