@@ -7,7 +7,7 @@ use burn::prelude::*;
 
 use crate::decoder::VoxelLiftConfig;
 use crate::modality::Modality;
-use crate::render::rays::VoxelPlacement;
+use crate::render::rays::{VoxelPlacement, sample_depths_near_dense};
 use crate::swin::SwinConfig;
 
 /// The BEV region the latent covers, in the ego frame (metres), and its pillar grid.
@@ -26,6 +26,9 @@ pub struct RenderConfig {
     pub samples: usize,
     pub near: f64,
     pub far: f64,
+    /// Samples are evenly spaced in depth from `near` to here, then evenly spaced in disparity
+    /// out to `far`; `far` gives the paper's uniform spacing.
+    pub linear_until: f64,
     /// Camera rays are cast on a grid this many times coarser than the image (8).
     pub camera_stride: usize,
     /// Hidden width of the MLP that predicts α from a voxel feature.
@@ -62,6 +65,18 @@ pub enum ConfigError {
     Read { path: String, message: String },
     #[error("{path}: {}", problems.join("; "))]
     Invalid { path: String, problems: Vec<String> },
+}
+
+impl RenderConfig {
+    /// The fixed depths every ray is sampled at, metres.
+    pub fn sample_depths(&self) -> Vec<f32> {
+        sample_depths_near_dense(
+            self.near as f32,
+            self.linear_until as f32,
+            self.far as f32,
+            self.samples,
+        )
+    }
 }
 
 impl TokenizerConfig {
@@ -208,6 +223,14 @@ impl TokenizerConfig {
             || self.render.samples == 0
         {
             problems.push("render: needs 0 < near < far and at least one sample".into());
+        }
+        if !(self.render.near < self.render.linear_until
+            && self.render.linear_until <= self.render.far)
+        {
+            problems.push(format!(
+                "render.linear_until: {} must lie in (near, far] = ({}, {}]",
+                self.render.linear_until, self.render.near, self.render.far
+            ));
         }
         if self.cameras == 0 || self.fusion_heights == 0 || self.latent_channels == 0 {
             problems.push("cameras, fusion_heights and latent_channels must be positive".into());

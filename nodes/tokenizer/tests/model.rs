@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use bevworld_tokenizer::TokenizerConfig;
 use bevworld_tokenizer::model::EncoderInput;
-use bevworld_tokenizer::render::rays::{Rays, sample_depths, sample_positions};
+use bevworld_tokenizer::render::rays::{Rays, sample_positions};
 use burn::prelude::*;
 use burn::tensor::Distribution;
 
@@ -56,11 +56,7 @@ fn tiny_tokenizer_runs_end_to_end() {
             [0.0, 0.6, -0.8],
         ],
     };
-    let depths = sample_depths(
-        config.render.near as f32,
-        config.render.far as f32,
-        config.render.samples,
-    );
+    let depths = config.render.sample_depths();
     let positions = sample_positions(&rays, &depths, &config.voxel_placement(), &device);
     let depth_row =
         Tensor::<2>::from_data(TensorData::new(depths.clone(), [1, depths.len()]), &device);

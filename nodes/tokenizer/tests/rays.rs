@@ -7,7 +7,7 @@ use common::nuscenes_frame;
 
 use bevworld_tokenizer::render::rays::{
     VoxelPlacement, camera_rays, inclination_azimuth, lidar_rays, points_from_depths,
-    sample_depths, sample_positions, spherical_direction,
+    sample_depths, sample_depths_near_dense, sample_positions, spherical_direction,
 };
 use burn::prelude::*;
 use glam::DVec3;
@@ -73,6 +73,34 @@ fn spherical_angles_round_trip() {
         let (i, a) = inclination_azimuth(direction * 7.5);
         assert!((i - inclination).abs() < 1e-12 && (a - azimuth).abs() < 1e-12);
     }
+}
+
+#[test]
+fn near_dense_samples_are_linear_then_even_in_disparity() {
+    let close = |a: &[f32], b: &[f32]| {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5)
+    };
+    // near 1, seam 2, far 4: extents 1 and 2 (1 - 2/4) = 1 share 6 samples 3 : 3. Linear
+    // 1, 4/3, 5/3; then disparity 1/2 -> 1/4 in halves: 2, 1/0.375, 4.
+    let depths = sample_depths_near_dense(1.0, 2.0, 4.0, 6);
+    assert!(
+        close(&depths, &[1.0, 4.0 / 3.0, 5.0 / 3.0, 2.0, 8.0 / 3.0, 4.0]),
+        "{depths:?}"
+    );
+    // The seam at `far` is uniform spacing; too few samples to split also fall back to it.
+    assert_eq!(
+        sample_depths_near_dense(1.0, 5.0, 5.0, 5),
+        sample_depths(1.0, 5.0, 5)
+    );
+    assert_eq!(sample_depths_near_dense(1.0, 2.0, 5.0, 2), vec![1.0, 5.0]);
+    // The tiny config's 48 samples: 27 linear ones 0.72 m apart up to 20 m, then steps that
+    // start at 0.78 m and grow, strictly increasing to exactly `far`.
+    let depths = sample_depths_near_dense(0.5, 20.0, 80.0, 48);
+    assert_eq!(depths.len(), 48);
+    assert!((depths[27] - 20.0).abs() < 1e-5 && (depths[47] - 80.0).abs() < 1e-4);
+    assert!((depths[1] - depths[0] - 19.5 / 27.0).abs() < 1e-5);
+    assert!((depths[28] - depths[27] - 0.779).abs() < 1e-3, "{depths:?}");
+    assert!(depths.windows(2).all(|w| w[1] > w[0]));
 }
 
 #[test]

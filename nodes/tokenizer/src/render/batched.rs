@@ -7,7 +7,7 @@ use burn::prelude::*;
 use crate::config::TokenizerConfig;
 use crate::frame_input::FrameRays;
 use crate::model::Tokenizer;
-use crate::render::rays::{Rays, VoxelPlacement, sample_depths, sample_positions};
+use crate::render::rays::{Rays, VoxelPlacement, sample_positions};
 
 /// What rendering a set of rays gives, on the host.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -76,11 +76,7 @@ impl<'a> VoxelScene<'a> {
         Self {
             model,
             voxels,
-            depths: sample_depths(
-                config.render.near as f32,
-                config.render.far as f32,
-                config.render.samples,
-            ),
+            depths: config.render.sample_depths(),
             placement: config.voxel_placement(),
             chunk: 4096,
         }

@@ -113,6 +113,38 @@ pub fn points_from_depths(rays: &Rays, depths: &[f32]) -> Vec<[f32; 3]> {
         .collect()
 }
 
+/// `samples` fixed depths from `near` to `far` inclusive: evenly spaced in depth up to
+/// `linear_until`, then evenly spaced in disparity `1/t` out to `far`. Most of what a LiDAR or
+/// camera sees is within a few tens of metres, so the samples go there; far away one voxel
+/// covers less of the image, and coarse steps lose little. The two parts share the samples so
+/// that the step is about the same on both sides of `linear_until`. `linear_until >= far`
+/// gives uniform spacing.
+pub fn sample_depths_near_dense(
+    near: f32,
+    linear_until: f32,
+    far: f32,
+    samples: usize,
+) -> Vec<f32> {
+    if linear_until >= far || samples < 3 {
+        return sample_depths(near, far, samples);
+    }
+    // Step of the linear part: (L - near) / n1. Step of the disparity part at L:
+    // L² (1/L - 1/far) / n2 = L (1 - L / far) / n2. Equal when n1 : n2 = (L - near) : L (1 - L/far).
+    let linear_extent = linear_until - near;
+    let disparity_extent = linear_until * (1.0 - linear_until / far);
+    let share = linear_extent / (linear_extent + disparity_extent);
+    let linear = ((samples as f32 * share).round() as usize).clamp(1, samples - 2);
+    let disparity = samples - linear;
+    let (first, last) = (1.0 / linear_until, 1.0 / far);
+    (0..linear)
+        .map(|i| near + linear_extent * i as f32 / linear as f32)
+        .chain((0..disparity).map(|j| {
+            let fraction = j as f32 / (disparity - 1) as f32;
+            1.0 / (first + (last - first) * fraction)
+        }))
+        .collect()
+}
+
 /// `samples` fixed depths, uniform from `near` to `far` inclusive.
 pub fn sample_depths(near: f32, far: f32, samples: usize) -> Vec<f32> {
     match samples {

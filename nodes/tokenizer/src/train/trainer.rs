@@ -17,7 +17,7 @@ use crate::config::TokenizerConfig;
 use crate::modality::Modality;
 use crate::model::Tokenizer;
 use crate::render::VoxelScene;
-use crate::render::rays::{VoxelPlacement, points_from_depths, sample_depths, sample_positions};
+use crate::render::rays::{VoxelPlacement, points_from_depths, sample_positions};
 use crate::train::checkpoint::{self, CheckpointError, CheckpointState};
 use crate::train::clip::clip_global_norm;
 use crate::train::config::TrainConfig;
@@ -166,11 +166,7 @@ impl Trainer {
             perceptual,
             rng: SplitMix64::new(config.seed ^ 0x5eed_0f_da7a),
             step: 0,
-            depths: sample_depths(
-                model_config.render.near as f32,
-                model_config.render.far as f32,
-                model_config.render.samples,
-            ),
+            depths: model_config.render.sample_depths(),
             placement: model_config.voxel_placement(),
             config,
             model_config,
