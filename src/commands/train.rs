@@ -307,16 +307,19 @@ fn plot_curves(csv: &std::path::Path, png: &std::path::Path) -> Result<()> {
         png,
         &[
             Series {
+                title: "TRAINING LOSS (LOG)",
                 points: &loss,
                 colour: [200, 60, 40],
                 log_scale: true,
             },
             Series {
+                title: "VAL PSNR (DB)",
                 points: &psnr,
                 colour: [40, 90, 200],
                 log_scale: false,
             },
             Series {
+                title: "VAL CHAMFER (M2, LOG)",
                 points: &chamfer,
                 colour: [30, 150, 60],
                 log_scale: true,

@@ -1,16 +1,24 @@
-//! `RUN/curves.png`: the training loss (log scale) and the validation PSNR against steps, drawn
-//! with nothing but the `image` crate, so that a run can be judged without a plotting stack.
+//! `RUN/curves.png`: the training loss (log scale), the validation PSNR and the validation
+//! Chamfer against steps, drawn with nothing but the `image` crate (and a 5×7 bitmap font for
+//! the labels), so that a run can be judged without a plotting stack.
 
 use std::path::Path;
 
 use image::{Rgb, RgbImage};
 
-const WIDTH: u32 = 900;
-const HEIGHT: u32 = 360;
-const MARGIN: u32 = 30;
+use crate::train::glyphs::{GLYPH_HEIGHT, draw_text, text_width};
 
-/// A series of (step, value) points with its colour.
+const WIDTH: u32 = 900;
+const HEIGHT: u32 = 400;
+const MARGIN: u32 = 30;
+/// Font pixels per glyph pixel.
+const SCALE: u32 = 2;
+const INK: [u8; 3] = [40, 40, 40];
+
+/// A series of (step, value) points with its title and colour.
 pub struct Series<'a> {
+    /// Drawn above the panel, e.g. "VAL PSNR (DB)".
+    pub title: &'a str,
     pub points: &'a [(f64, f64)],
     pub colour: [u8; 3],
     pub log_scale: bool,
@@ -27,8 +35,26 @@ fn draw_line(image: &mut RgbImage, (x0, y0): (f64, f64), (x1, y1): (f64, f64), c
     }
 }
 
+/// A value as a short label: whole numbers as they are, three or four significant digits
+/// otherwise.
+fn label(value: f64) -> String {
+    let magnitude = value.abs();
+    if value == 0.0 || magnitude >= 1000.0 || (value == value.trunc() && magnitude >= 1.0) {
+        format!("{value:.0}")
+    } else if magnitude >= 100.0 {
+        format!("{value:.1}")
+    } else if magnitude >= 1.0 {
+        format!("{value:.2}")
+    } else {
+        // 3 significant digits: 0.0123, 0.000456.
+        let decimals = (2 - magnitude.max(1e-9).log10().floor() as i32).clamp(2, 9) as usize;
+        format!("{value:.decimals$}")
+    }
+}
+
 /// Draws each series in its own panel, side by side, each scaled to its own range, with a
-/// frame and a light grid of 4 divisions.
+/// light grid of 4 divisions, the title above, the value range at the panel's top and bottom
+/// left, and the step range below it.
 pub fn plot(path: &Path, panels: &[Series]) -> Result<(), image::ImageError> {
     let mut image = RgbImage::from_pixel(WIDTH, HEIGHT, Rgb([255, 255, 255]));
     let count = panels.len().max(1) as u32;
@@ -36,7 +62,8 @@ pub fn plot(path: &Path, panels: &[Series]) -> Result<(), image::ImageError> {
     for (index, series) in panels.iter().enumerate() {
         let left = index as u32 * panel_width + MARGIN;
         let right = (index as u32 + 1) * panel_width - MARGIN / 2;
-        let (top, bottom) = (MARGIN / 2, HEIGHT - MARGIN);
+        let (top, bottom) = (MARGIN + 8, HEIGHT - MARGIN);
+        draw_text(&mut image, series.title, (left, 10), SCALE, INK);
         for k in 0..=4 {
             let y = f64::from(top) + f64::from(bottom - top) * f64::from(k) / 4.0;
             draw_line(
@@ -83,6 +110,27 @@ pub fn plot(path: &Path, panels: &[Series]) -> Result<(), image::ImageError> {
                 f64::from(bottom) - v * f64::from(bottom - top),
             )
         };
+        // The range in the series' own units, so a log panel reads in metres or loss units.
+        let shown = |v: f64| if series.log_scale { 10f64.powf(v) } else { v };
+        let glyph_height = GLYPH_HEIGHT * SCALE;
+        draw_text(
+            &mut image,
+            &label(shown(y_max)),
+            (left + 4, top + 4),
+            SCALE,
+            INK,
+        );
+        draw_text(
+            &mut image,
+            &label(shown(y_min)),
+            (left + 4, bottom - glyph_height - 4),
+            SCALE,
+            INK,
+        );
+        draw_text(&mut image, &label(x_min), (left, bottom + 6), SCALE, INK);
+        let steps = format!("STEP {}", label(x_max));
+        let steps_left = right.saturating_sub(text_width(&steps, SCALE)).max(left);
+        draw_text(&mut image, &steps, (steps_left, bottom + 6), SCALE, INK);
         for pair in finite.windows(2) {
             draw_line(
                 &mut image,
@@ -93,4 +141,21 @@ pub fn plot(path: &Path, panels: &[Series]) -> Result<(), image::ImageError> {
         }
     }
     image.save(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::label;
+
+    #[test]
+    fn labels_are_short_and_exact_enough() {
+        assert_eq!(label(2800.0), "2800");
+        assert_eq!(label(10.0), "10");
+        assert_eq!(label(21.2219), "21.22");
+        assert_eq!(label(123.45), "123.5");
+        assert_eq!(label(0.5912), "0.591");
+        assert_eq!(label(0.012345), "0.0123");
+        assert_eq!(label(0.0), "0");
+        assert_eq!(label(-3.0), "-3");
+    }
 }
