@@ -105,7 +105,7 @@ fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
         let pair = image::open(frame.join(format!("{camera}_input_vs_recon.png"))).expect("pair");
         assert_eq!((pair.width(), pair.height()), (224, 64));
     }
-    // One rendered point per input ray.
+    // One rendered point per input return (the synthetic LiDAR has none off the ego body).
     let inputs = ply_vertices(&frame.join("LIDAR_TOP.ply"));
     assert!(inputs > 1000, "{inputs} input points");
     assert_eq!(ply_vertices(&frame.join("LIDAR_TOP_recon.ply")), inputs);
@@ -123,6 +123,28 @@ fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
         .as_f64()
         .expect("fraction");
     assert!(fraction > 0.0 && fraction < 1.0, "fraction {fraction}");
+}
+
+#[test]
+fn on_the_real_keyframe_the_rendered_sweep_leaves_out_the_returns_off_the_car() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("out");
+    let report = run_reconstruct(
+        &common::repo().join("../shared/data/nuscenes-sample"),
+        &out,
+        &[],
+    );
+    let frame = out.join("000000");
+    // 8,526 of the sweep's 34,688 returns lie in 4D-Occ's ego box: no ray is cast for them.
+    assert_eq!(ply_vertices(&frame.join("LIDAR_TOP.ply")), 34_688);
+    assert_eq!(
+        ply_vertices(&frame.join("LIDAR_TOP_recon.ply")),
+        34_688 - 8_526
+    );
+    let chamfer = node(&report, "metrics")["extra"]["chamfer_m2_mean"]
+        .as_f64()
+        .expect("chamfer");
+    assert!(chamfer.is_finite() && chamfer > 0.0, "chamfer {chamfer}");
 }
 
 #[test]

@@ -42,8 +42,8 @@ fn a_broken_config_names_every_bad_field() {
     let broken = text
         .replace("pillar_grid: 128", "pillar_grid: 129")
         .replace("heads: [2, 4]", "heads: [2, 5]")
-        .replace("camera_stride: 8", "camera_stride: 6")
-        .replace("linear_until: 80.0", "linear_until: 90.0");
+        .replace("camera_stride: 4", "camera_stride: 6")
+        .replace("linear_until: 20.0", "linear_until: 90.0");
     let err = TokenizerConfig::from_yaml(&broken, "broken.yaml").unwrap_err();
     let message = err.to_string();
     assert!(matches!(err, ConfigError::Invalid { .. }));

@@ -2,7 +2,8 @@
 //! the frame it stands for (its cameras' calibration, its real LiDAR beam directions).
 //!
 //! Outputs: `images` (the reconstructions, named by camera), `lidar` (the rendered sweep in
-//! the LiDAR frame, one point per input ray, with the input's ring), and `side_by_side`
+//! the LiDAR frame, one point per input return off the ego vehicle, with that return's ring),
+//! and `side_by_side`
 //! (input | reconstruction per camera, at the model's image size).
 
 use std::sync::Arc;
