@@ -1,7 +1,9 @@
 //! `reconstruction_metrics`: compares a rendered frame with the frame it came from. Camera
 //! PSNR and SSIM are taken at the rendered size, against the input image resized to it
 //! (triangle filter, as the encoder resizes); the LiDAR Chamfer distance is taken in the ego
-//! frame within an ROI (4D-Occ's by default). Means over frames go into the node's metrics.
+//! frame within an ROI (4D-Occ's by default), after dropping the returns off the ego
+//! vehicle's body (`EgoBody`) from both clouds, as 4D-Occ drops them and as the ROI applies to
+//! each cloud on its own. Means over frames go into the node's metrics.
 
 use std::path::PathBuf;
 
@@ -86,7 +88,7 @@ pub fn score_frame(
             .collect()
     };
     let chamfer = chamfer_in_roi(
-        &to_f64(lidar.ego_points()),
+        &to_f64(lidar.scene_ego_points()),
         &to_f64(frame.lidar.scene_ego_points()),
         roi,
     );

@@ -1,5 +1,5 @@
 //! The `reconstruction_metrics` node on the real nuScenes keyframe: the input scored against
-//! itself gives the PSNR cap and zero Chamfer; a bad ROI preset or a rendered image of an
+//! itself gives the PSNR cap and zero Chamfer, with or without the returns off the car; a bad ROI preset or a rendered image of an
 //! unknown camera is a clear error, never a panic.
 
 use std::path::PathBuf;
@@ -71,6 +71,26 @@ fn the_input_scored_against_itself_is_perfect() {
     .expect("scores");
     assert_eq!(scores.psnr_db, 100.0, "identical images hit the cap");
     assert!((scores.ssim - 1.0).abs() < 1e-9);
+    assert_eq!(scores.chamfer_m2, 0.0);
+    // A render casts no rays for the 8,526 returns off the car; without them the sweep is still
+    // perfect, because the ground truth leaves them out too.
+    let scene_only = bevworld_types::PointCloud {
+        points: frame
+            .lidar
+            .scene_indices()
+            .into_iter()
+            .map(|i| frame.lidar.points[i])
+            .collect(),
+        ..(*frame.lidar).clone()
+    };
+    assert_eq!(scene_only.len(), 34_688 - 8_526);
+    let scores = score_frame(
+        &frame,
+        &inputs_as_render(&frame),
+        &scene_only,
+        &Roi::FOUR_D_OCC,
+    )
+    .expect("scores");
     assert_eq!(scores.chamfer_m2, 0.0);
 
     let mut sink = build(serde_json::json!({})).expect("node");
