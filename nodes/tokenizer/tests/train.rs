@@ -88,7 +88,9 @@ fn one_step_lowers_the_loss_of_a_fixed_batch() {
 fn a_few_dozen_steps_overfit_one_frame() {
     let mut trainer = fixed_batch_trainer(5e-3);
     let before = trainer.validate();
-    for _ in 0..60 {
+    // With the tiny config's 1/4 camera rays this frame goes 15.5 -> 18.0 dB in 80 steps and
+    // 18.5 dB in 100 (16.9 dB at step 60, on the way up); 100 leaves a margin.
+    for _ in 0..100 {
         trainer.train_step().expect("step");
     }
     let after = trainer.validate();
