@@ -86,9 +86,9 @@ fn render_rays_retrace_the_encoder_projection_and_the_lidar_sweep() {
     let inputs = FrameInputs::new(&config);
     let frame = nuscenes_frame();
     let rays = inputs.frame_rays(&frame).expect("rays");
-    let stride = config.render.camera_stride as f64;
-    let s = config.render.camera_stride;
-    assert_eq!((rays.rows, rays.columns), (64 / s, 112 / s));
+    let stride = config.render.camera_stride;
+    assert_eq!((rays.rows, rays.columns), (64 / stride, 112 / stride));
+    let stride = stride as f64;
     assert_eq!(rays.camera.len(), 6 * rays.rows * rays.columns);
 
     // A point 12 m along each camera ray projects, through the fusion's camera model, onto
