@@ -3,7 +3,8 @@
 //! Each BEV cell is a query. Its K reference points along the pillar's height are projected into
 //! every camera (`projection.rs`); around each projection the query predicts a learned offset
 //! (zero at initialisation, so sampling starts at the geometric point) and an attention weight.
-//! Image features are read with `grid_sample_2d` (bilinear, zero padding). The weights are a
+//! Image features are read bilinearly with zero padding (`bilinear::sample_bilinear`, with
+//! `grid_sample_2d`'s conventions). The weights are a
 //! softmax over the (camera, point) pairs that are valid, times their validity: a point behind a
 //! camera or outside its image gets weight exactly 0, and a query that no camera sees gets
 //! nothing from the images, only its residual.
@@ -11,8 +12,8 @@
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
-use burn::tensor::ops::GridSampleOptions;
 
+use crate::encoder::bilinear::sample_bilinear;
 use crate::swin::window::MASKED;
 
 #[derive(Config, Debug, PartialEq)]
@@ -71,10 +72,7 @@ impl DeformableFusion {
         let (queries, k) = (height * width, self.heights);
         let query = bev.reshape([dim, queries]).swap_dims(0, 1); // [Q, C]
 
-        let value = self
-            .value
-            .forward(images.permute([0, 2, 3, 1])) // [N_c, h, w, C]
-            .permute([0, 3, 1, 2]); // [N_c, C, h, w]
+        let value = self.value.forward(images.permute([0, 2, 3, 1])); // [N_c, h, w, C]
         // Offsets in feature-map cells, turned into [-1, 1] units.
         let scale = Tensor::<1>::from_data(
             TensorData::new(vec![2.0 / feature_w as f32, 2.0 / feature_h as f32], [2]),
@@ -96,12 +94,12 @@ impl DeformableFusion {
             .reshape([queries, cameras, k])
             .swap_dims(0, 1); // [N_c, Q, K]
 
-        let sampled = value.grid_sample_2d(grid, GridSampleOptions::default()); // [N_c, C, Q, K]
-        let fused = (sampled * attention.reshape([cameras, 1, queries, k]))
-            .sum_dim(3)
+        let sampled = sample_bilinear(value, grid.reshape([cameras, queries * k, 2]))
+            .reshape([cameras, queries, k, dim]); // [N_c, Q, K, C]
+        let fused = (sampled * attention.reshape([cameras, queries, k, 1]))
+            .sum_dim(2)
             .sum_dim(0)
-            .reshape([dim, queries])
-            .swap_dims(0, 1); // [Q, C]
+            .reshape([queries, dim]); // [Q, C]
         let out = query + self.output.forward(fused); // [Q, C]
         out.swap_dims(0, 1).reshape([1, dim, height, width])
     }

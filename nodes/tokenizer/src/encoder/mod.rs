@@ -1,5 +1,6 @@
 //! The tokenizer's encoder parts.
 
+pub mod bilinear;
 pub mod fusion;
 pub mod pillar_net;
 pub mod projection;
