@@ -4,10 +4,10 @@
 //! every camera (`projection.rs`); around each projection the query predicts a learned offset
 //! (zero at initialisation, so sampling starts at the geometric point) and an attention weight.
 //! Image features are read bilinearly with zero padding (`bilinear::sample_bilinear`, with
-//! `grid_sample_2d`'s conventions). The weights are a
-//! softmax over the (camera, point) pairs that are valid, times their validity: a point behind a
-//! camera or outside its image gets weight exactly 0, and a query that no camera sees gets
-//! nothing from the images, only its residual.
+//! `grid_sample_2d`'s conventions). The weights are a softmax over the (camera, point) pairs
+//! that are valid, times their validity: a point behind a camera or outside its image gets
+//! weight exactly 0, and a query that no camera sees gets nothing from the images, only its
+//! residual.
 
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;

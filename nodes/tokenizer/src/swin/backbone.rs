@@ -122,7 +122,7 @@ pub struct SwinBackbone {
 }
 
 impl SwinBackbone {
-    /// Channels-first in and out, so that convolutions and `grid_sample_2d` can follow.
+    /// Channels-first in and out, so that convolutions can follow.
     // [B, C_in, H, W] -> [B, C_out, H / stride, W / stride]
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let mut h = self.embed.forward(x); // [B, H/p, W/p, C]
