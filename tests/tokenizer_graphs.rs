@@ -244,6 +244,48 @@ fn bad_model_params_fail_before_any_frame_naming_the_field() {
 }
 
 #[test]
+fn a_lidar_only_model_refuses_to_render_the_cameras() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth_small(&data);
+    // The ablation's L -> L model: its camera decoder never trained.
+    let tiny = std::fs::read_to_string("configs/models/tokenizer-tiny.yaml").expect("tiny config");
+    assert!(tiny.contains("modalities: [camera, lidar]"));
+    let lidar_only = dir.path().join("tokenizer-lidar.yaml");
+    std::fs::write(
+        &lidar_only,
+        tiny.replace("modalities: [camera, lidar]", "modalities: [lidar]"),
+    )
+    .expect("write config");
+    let mut args: Vec<String> = vec![
+        "run".into(),
+        "configs/graphs/reconstruct.yaml".into(),
+        "--no-progress".into(),
+        "--set".into(),
+        format!("source.data={}", data.display()),
+        "--set".into(),
+        format!("render.model={}", lidar_only.display()),
+        "--set".into(),
+        "render.weights=untrained".into(),
+        "--set".into(),
+        "encode.weights=untrained".into(),
+    ];
+    args.extend(reconstruct_outputs(&dir.path().join("out")));
+    let output = bevworld_owned(&args);
+    let message = text(&output);
+    assert!(!output.status.success(), "rendered cameras: {message}");
+    for word in [
+        "render",
+        "`images`",
+        "without the cameras",
+        "modalities: lidar",
+    ] {
+        assert!(message.contains(word), "'{word}' missing from: {message}");
+    }
+    assert!(!message.contains("panicked"), "{message}");
+}
+
+#[test]
 fn tokenizer_stats_matches_the_latents_it_summarises() {
     use bevworld_tokenizer::latent::{LatentStatsFile, stats_path_for};
     use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights, save_weights};

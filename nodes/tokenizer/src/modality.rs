@@ -34,6 +34,22 @@ impl Modality {
         Ok(list)
     }
 
+    /// The word the configs and the CLI use: `camera` or `lidar`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Modality::Camera => "camera",
+            Modality::Lidar => "lidar",
+        }
+    }
+
+    /// What a model renders of it, for messages: `cameras` or `LiDAR`.
+    pub fn plural(self) -> &'static str {
+        match self {
+            Modality::Camera => "cameras",
+            Modality::Lidar => "LiDAR",
+        }
+    }
+
     /// The paper's notation: `C`, `L`, or `L&C`.
     pub fn paper_name(list: &[Modality]) -> &'static str {
         match (

@@ -16,7 +16,8 @@ use burn::prelude::*;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::frame_input::{FrameInputs, image_planes, planes_to_image};
+use crate::frame_input::{FrameInputs, FrameRays, image_planes, planes_to_image};
+use crate::modality::Modality;
 use crate::nodes::loaded_model::{LoadedModel, ModelParams};
 use crate::render::rays::Rays;
 use crate::render::{OccupancyGrid, RenderedRays, SkipOptions, VoxelScene};
@@ -99,35 +100,48 @@ fn render_rays(
     }
 }
 
-impl Task for RenderNode {
-    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let latent = inputs.get::<BevFeatures>("latent")?;
-        let frame = inputs.get::<SensorFrame>("frame")?;
-        let latent_tensor = self.latent_tensor(latent)?;
-        let rays = self
-            .inputs
-            .frame_rays(frame)
-            .map_err(|error| NodeError::item(error.to_string()))?;
-        let voxels = self.loaded.model.voxels(latent_tensor);
-        let mut scene = VoxelScene::new(&self.loaded.model, &self.loaded.config, voxels);
-        scene.chunk = self.chunk;
-        let grid = self
-            .skipping
-            .as_ref()
-            .map(|options| OccupancyGrid::build(&scene, options));
-        let skipping = grid.as_ref().zip(self.skipping.as_ref());
-        let camera = render_rays(&scene, skipping, &rays.camera);
-        let lidar = render_rays(&scene, skipping, &rays.lidar);
+impl RenderNode {
+    /// Which of the model's two renders anything listens to. Asking a single-modality
+    /// (ablation) model for the other one is an error: that half of its decoder never trained.
+    fn wanted(&self, out: &Outputs) -> Result<(bool, bool), NodeError> {
+        let config = &self.loaded.config;
+        let images = out.is_connected("images") || out.is_connected("side_by_side");
+        let lidar = out.is_connected("lidar");
+        for (wanted, modality, ports) in [
+            (images, Modality::Camera, "`images`/`side_by_side`"),
+            (lidar, Modality::Lidar, "`lidar`"),
+        ] {
+            if wanted && !config.uses(modality) {
+                return Err(NodeError::fatal(format!(
+                    "render: {ports} is connected, but model '{}' was trained without the {} (modalities: {}), so it cannot render them; disconnect the port or use a model that renders both",
+                    config.name,
+                    modality.plural(),
+                    config
+                        .modalities
+                        .iter()
+                        .map(|m| m.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )));
+            }
+        }
+        Ok((images, lidar))
+    }
+
+    /// The camera renders through the upsampler, as `images` and, when connected, as
+    /// `side_by_side` pairs.
+    fn send_images(
+        &self,
+        frame: &SensorFrame,
+        camera: &RenderedRays,
+        rays: &FrameRays,
+        out: &mut Outputs,
+    ) -> Result<(), NodeError> {
         let features = camera.features_tensor(0, camera.rays(), &self.loaded.device);
         let rgb = self
             .loaded
             .model
             .camera_rgb(features, rays.cameras, rays.rows, rays.columns);
-        drop(scene);
-        for part in [&camera, &lidar] {
-            self.samples_evaluated += part.samples_evaluated;
-            self.samples_dense += part.samples_dense;
-        }
         let [h, w] = self.loaded.config.image_size;
         let planes = rgb
             .into_data()
@@ -154,43 +168,80 @@ impl Task for RenderNode {
             });
         }
 
-        let cloud = &frame.lidar;
-        let lidar_from_ego = cloud.ego_from_lidar.inverse();
-        let points = rays
-            .lidar
-            .directions
-            .iter()
-            .zip(&lidar.depth)
-            .zip(&rays.lidar_points)
-            .map(|((d, &depth), &index)| {
-                let direction = lidar_from_ego.transform_vector3(DVec3::new(
-                    d[0].into(),
-                    d[1].into(),
-                    d[2].into(),
-                ));
-                let p = direction * f64::from(depth);
-                LidarPoint {
-                    x: p.x as f32,
-                    y: p.y as f32,
-                    z: p.z as f32,
-                    intensity: 0.0,
-                    ring: cloud.points.get(index).map_or(0, |p| p.ring),
-                }
-            })
-            .collect();
-        let rendered_cloud = PointCloud {
-            points,
-            ego_from_lidar: cloud.ego_from_lidar,
-            timestamp_us: cloud.timestamp_us,
-            global_from_ego: cloud.global_from_ego,
-            dropped_non_finite: 0,
-            source_file: format!("rendered:{}", cloud.source_file),
-        };
         if out.is_connected("side_by_side") {
             out.send("side_by_side", side_by_side)?;
         }
-        out.send("images", images)?;
-        out.send("lidar", rendered_cloud)
+        out.send("images", images)
+    }
+}
+
+/// The rendered depths along the sweep's rays as points in the LiDAR frame, each with the ring
+/// of the return its ray came from.
+fn rendered_sweep(frame: &SensorFrame, lidar: &RenderedRays, rays: &FrameRays) -> PointCloud {
+    let cloud = &frame.lidar;
+    let lidar_from_ego = cloud.ego_from_lidar.inverse();
+    let points = rays
+        .lidar
+        .directions
+        .iter()
+        .zip(&lidar.depth)
+        .zip(&rays.lidar_points)
+        .map(|((d, &depth), &index)| {
+            let direction =
+                lidar_from_ego.transform_vector3(DVec3::new(d[0].into(), d[1].into(), d[2].into()));
+            let p = direction * f64::from(depth);
+            LidarPoint {
+                x: p.x as f32,
+                y: p.y as f32,
+                z: p.z as f32,
+                intensity: 0.0,
+                ring: cloud.points.get(index).map_or(0, |p| p.ring),
+            }
+        })
+        .collect();
+    PointCloud {
+        points,
+        ego_from_lidar: cloud.ego_from_lidar,
+        timestamp_us: cloud.timestamp_us,
+        global_from_ego: cloud.global_from_ego,
+        dropped_non_finite: 0,
+        source_file: format!("rendered:{}", cloud.source_file),
+    }
+}
+
+impl Task for RenderNode {
+    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
+        let (want_images, want_lidar) = self.wanted(out)?;
+        let latent = inputs.get::<BevFeatures>("latent")?;
+        let frame = inputs.get::<SensorFrame>("frame")?;
+        let latent_tensor = self.latent_tensor(latent)?;
+        let rays = self
+            .inputs
+            .frame_rays(frame)
+            .map_err(|error| NodeError::item(error.to_string()))?;
+        let voxels = self.loaded.model.voxels(latent_tensor);
+        let mut scene = VoxelScene::new(&self.loaded.model, &self.loaded.config, voxels);
+        scene.chunk = self.chunk;
+        let grid = self
+            .skipping
+            .as_ref()
+            .map(|options| OccupancyGrid::build(&scene, options));
+        let skipping = grid.as_ref().zip(self.skipping.as_ref());
+        // Only what something consumes is cast.
+        let camera = want_images.then(|| render_rays(&scene, skipping, &rays.camera));
+        let lidar = want_lidar.then(|| render_rays(&scene, skipping, &rays.lidar));
+        drop(scene);
+        for part in camera.iter().chain(&lidar) {
+            self.samples_evaluated += part.samples_evaluated;
+            self.samples_dense += part.samples_dense;
+        }
+        if let Some(camera) = camera {
+            self.send_images(frame, &camera, &rays, out)?;
+        }
+        if let Some(lidar) = lidar {
+            out.send("lidar", rendered_sweep(frame, &lidar, &rays))?;
+        }
+        Ok(())
     }
 
     fn report(&self) -> Figures {
