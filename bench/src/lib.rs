@@ -5,6 +5,11 @@
 
 pub mod plot;
 
+/// The allocator the `bevworld` binary runs with, so that benchmarks time what users run
+/// (see `src/main.rs`). A library's global allocator applies to every binary that links it.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use std::path::PathBuf;
 
 /// Where results go: `bench/results/`, from any working directory.
