@@ -153,18 +153,22 @@ fn main() {
             extra,
         ]
     };
+    let n = config.latent_size();
+    let [voxel_c, voxel_z, voxel_y, voxel_x] = config.decoder.voxel_shape(n, n);
     let rows = vec![
         row(
             format!(
-                "encoder (6 cameras + {} pillars -> 4 x 32 x 32)",
-                pillars.len()
+                "encoder ({} cameras + {} pillars -> {} x {n} x {n})",
+                config.cameras,
+                pillars.len(),
+                config.latent_channels
             ),
             (encoder.0, encoder.1),
             encoder_flop,
             String::new(),
         ),
         row(
-            "voxel lift (latent -> 8 x 16 x 128 x 128)".into(),
+            format!("voxel lift (latent -> {voxel_c} x {voxel_z} x {voxel_y} x {voxel_x})"),
             (lift.0, lift.1),
             lift_flop,
             String::new(),
