@@ -11,7 +11,7 @@
 //! leaves latency unchanged but makes the skipping figures unrepresentative (α ≈ 0.5 everywhere).
 //!
 //!   cargo run --release -p bevworld-bench --bin tokenizer
-//!   TOKENIZER_WEIGHTS=weights/tokenizer-tiny.bpk cargo run --release -p bevworld-bench --bin tokenizer
+//!   TOKENIZER_WEIGHTS=nodes/tokenizer/weights/tokenizer-tiny.bpk cargo run --release -p bevworld-bench --bin tokenizer
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -225,10 +225,15 @@ fn main() {
         100.0 * occupied,
     );
     print!("{notes}");
+    let command = "cargo run --release -p bevworld-bench --bin tokenizer";
+    let command = match &weights {
+        Some(path) => format!("TOKENIZER_WEIGHTS={} {command}", path.display()),
+        None => command.to_string(),
+    };
     write_results(
         "tokenizer",
         "Tokenizer latency, FLOPs and rendering with and without skipping, tiny config",
-        "cargo run --release -p bevworld-bench --bin tokenizer",
+        &command,
         &table,
         &notes,
         &serde_json::json!({
