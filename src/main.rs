@@ -92,6 +92,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    bevworld_device::keep_freed_memory();
     init_tracing();
     let cli = Cli::parse();
     match dispatch(cli.command) {

@@ -4,6 +4,10 @@
 //! since tests and CPU training must not pick up a slow software GPU adapter by accident.
 //! Burn's own `Device::default()` panics on an unknown value; this reports an error instead.
 
+mod host_memory;
+
+pub use host_memory::{keep_freed_memory, purge_delay_ms};
+
 use std::time::Instant;
 
 use burn::prelude::*;
