@@ -1,11 +1,17 @@
 //! The PointPillars pillar feature net and its scatter into the dense BEV grid.
 //!
-//! Each point's 9 features go through a shared linear layer, a batch norm and a ReLU; a pillar
-//! is the max over its points. Padded point slots are masked to 0 after the ReLU, where every
+//! Each point's 9 features go through a shared linear layer, a normalisation and a ReLU; a
+//! pillar is the max over its points. PointPillars normalises with batch norm; we use a layer
+//! norm over each point's channels. Batch statistics pooled over every slot would include the
+//! padding, they differ between training (the batch's) and inference (running averages), and
+//! their running averages are a state that threads of a data-parallel step update in whatever
+//! order they finish, so a run would not repeat. A layer norm treats each point alone, the
+//! same way in training and inference. The linear layer has a bias, so that the norm does not
+//! make a point and its scaled copy alike. Padded point slots are masked to 0 after the ReLU, where every
 //! real value is already >= 0, so they never win the max. Only non-empty pillars are computed;
 //! the scatter writes them into a zero BEV map.
 
-use burn::nn::{BatchNorm, BatchNormConfig, Linear, LinearConfig};
+use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
@@ -21,18 +27,15 @@ pub struct PillarNetConfig {
 #[derive(Module, Debug)]
 pub struct PillarNet {
     linear: Linear,
-    norm: BatchNorm,
+    norm: LayerNorm,
 }
 
 impl PillarNetConfig {
     pub fn init(&self, device: &Device) -> PillarNet {
         PillarNet {
-            linear: LinearConfig::new(POINT_FEATURES, self.channels)
-                .with_bias(false)
-                .init(device),
-            norm: BatchNormConfig::new(self.channels)
+            linear: LinearConfig::new(POINT_FEATURES, self.channels).init(device),
+            norm: LayerNormConfig::new(self.channels)
                 .with_epsilon(1e-3)
-                .with_momentum(0.01)
                 .init(device),
         }
     }
@@ -43,11 +46,10 @@ impl PillarNet {
     // points [P, N, 9], valid [P, N] -> [P, C]
     pub fn forward(&self, points: Tensor<3>, valid: Tensor<2>) -> Tensor<2> {
         let [pillars, slots, _] = points.dims();
-        let h = self.linear.forward(points); // [P, N, C]
-        let h = self.norm.forward(h.swap_dims(1, 2)); // [P, C, N]
-        let h = relu(h) * valid.reshape([pillars, 1, slots]);
-        let [_, channels, _] = h.dims();
-        h.max_dim(2).reshape([pillars, channels])
+        let h = self.norm.forward(self.linear.forward(points)); // [P, N, C]
+        let h = relu(h) * valid.reshape([pillars, slots, 1]);
+        let [_, _, channels] = h.dims();
+        h.max_dim(1).reshape([pillars, channels])
     }
 }
 
