@@ -60,6 +60,10 @@ pub struct TrainTokenizerArgs {
     /// Exit with status 1 unless the final validation Chamfer is at most this many m².
     #[arg(long, value_name = "M2")]
     pub require_chamfer: Option<f64>,
+    /// Worker threads for a step's frames and for validation (default: the available cores).
+    /// The run's results do not depend on it.
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
     /// Log a training row to metrics.csv every N steps.
     #[arg(long, default_value_t = 10)]
     pub log_every: usize,
@@ -139,6 +143,9 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
 
     let (_, device) = bevworld_device::from_env()?;
     let mut trainer = Trainer::new(config.clone(), model_config.clone(), &device, train, val)?;
+    if let Some(threads) = args.threads {
+        trainer = trainer.with_threads(threads);
+    }
     if args.resume {
         trainer = trainer.resume(&args.out)?;
         println!("resumed at step {}", trainer.step());

@@ -76,6 +76,10 @@ pub struct TrainConfig {
     /// The model config, relative to this file.
     pub model: PathBuf,
     pub steps: usize,
+    /// Frames per optimiser step: each frame's loss is computed alone (on its own worker
+    /// thread when cores allow) and the step follows the gradient of their mean.
+    #[serde(default = "one")]
+    pub frames_per_step: usize,
     pub seed: u64,
     pub optimizer: OptimizerConfig,
     pub rays: RayConfig,
@@ -90,6 +94,10 @@ pub struct TrainConfig {
     #[serde(default)]
     pub perceptual_weights: Option<PathBuf>,
     pub data: DataConfig,
+}
+
+fn one() -> usize {
+    1
 }
 
 impl TrainConfig {
@@ -152,6 +160,7 @@ impl TrainConfig {
         }
         for (name, value) in [
             ("steps", self.steps),
+            ("frames_per_step", self.frames_per_step),
             ("rays.cameras_per_step", self.rays.cameras_per_step),
             ("rays.lidar_rays", self.rays.lidar_rays),
             ("checkpoint_every", self.checkpoint_every),

@@ -11,6 +11,7 @@ pub mod losses;
 pub mod metrics_log;
 pub mod perceptual;
 pub mod plot;
+pub mod replica;
 pub mod rng;
 pub mod schedule;
 pub mod trainer;

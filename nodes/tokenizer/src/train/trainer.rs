@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use bevworld_metrics::{Planes, Roi, chamfer_in_roi, psnr, ssim};
 use burn::module::Module;
-use burn::optim::{AdamWConfig, GradientsParams};
+use burn::optim::{AdamWConfig, GradientsAccumulator, GradientsParams};
 use burn::prelude::*;
 
 use crate::config::TokenizerConfig;
@@ -27,11 +27,36 @@ use crate::train::discriminator::{
 };
 use crate::train::losses::l1;
 use crate::train::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG16};
+use crate::train::replica::replica;
 use crate::train::rng::SplitMix64;
 use crate::train::schedule::learning_rate;
 use crate::weights::{WeightsError, load_module, load_weights, save_module, save_weights};
 
-/// One step's rendered cameras, their targets and L1 loss.
+/// What one frame of a step renders, drawn from the run's RNG before any work starts, so the
+/// draws, and so the run, do not depend on how the frames are spread over threads.
+#[derive(Clone, Debug)]
+struct FrameDraw {
+    frame: usize,
+    /// Cameras rendered whole; empty for a model that does not render cameras.
+    cameras: Vec<usize>,
+    /// LiDAR rays, by index into the frame's in-range rays; empty for a model without LiDAR.
+    lidar: Vec<usize>,
+}
+
+/// One frame's contribution to a step, computed on a worker thread.
+struct FrameOutcome {
+    /// Gradients of this frame's loss, scaled by 1 / frames per step.
+    grads: GradientsParams,
+    loss: f64,
+    rgb: Option<f64>,
+    lidar: Option<f64>,
+    perceptual: Option<f64>,
+    gan: Option<f64>,
+    /// The rendered cameras (detached) and their inputs, for the discriminator's step.
+    images: Option<(Tensor<4>, Tensor<4>)>,
+}
+
+/// One frame's rendered cameras, their targets and L1 loss.
 struct CameraLosses {
     /// `[k, 3, H, W]` in [0, 1].
     rgb: Tensor<4>,
@@ -39,10 +64,19 @@ struct CameraLosses {
     loss_rgb: Tensor<1>,
 }
 
-/// The reconstruction losses of the modalities the model renders.
-struct StepLosses {
-    camera: Option<CameraLosses>,
-    loss_lidar: Option<Tensor<1>>,
+/// What every frame of a step reads.
+struct StepInputs<'a> {
+    config: &'a TrainConfig,
+    model_config: &'a TokenizerConfig,
+    frames: &'a [TrainingFrame],
+    depths: &'a [f32],
+    placement: &'a VoxelPlacement,
+    perceptual: Option<&'a PerceptualLoss>,
+    device: &'a Device,
+    /// Whether the generator's adversarial term is on.
+    gan: bool,
+    /// The step being taken, counted from 1, for messages.
+    step: usize,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -65,6 +99,8 @@ pub enum TrainError {
     Perceptual(#[from] PerceptualError),
     #[error("no training frames")]
     NoFrames,
+    #[error("a training worker thread panicked; the step was not applied")]
+    WorkerPanicked,
 }
 
 /// What one step did.
@@ -115,11 +151,59 @@ pub struct Trainer {
     val: Vec<TrainingFrame>,
     depths: Vec<f32>,
     placement: VoxelPlacement,
+    /// Worker threads a step's frames (and validation's) are spread over. The results do not
+    /// depend on it.
+    threads: usize,
 }
 
 fn scalar(tensor: Tensor<1>) -> f64 {
     let value: f32 = tensor.into_scalar();
     f64::from(value)
+}
+
+/// `f` of every item, on up to `threads` scoped threads (item `i` on thread `i mod threads`),
+/// returned in item order. `prepare` runs on the calling thread once per thread and gives
+/// that thread its own state (a model replica).
+fn parallel_map<T: Sync, S: Send, R: Send>(
+    items: &[T],
+    threads: usize,
+    prepare: impl Fn() -> S,
+    f: impl Fn(&S, &T) -> R + Sync,
+) -> Result<Vec<R>, TrainError> {
+    let threads = threads.clamp(1, items.len().max(1));
+    if threads == 1 {
+        let state = prepare();
+        return Ok(items.iter().map(|item| f(&state, item)).collect());
+    }
+    let f = &f;
+    let mut slots: Vec<Option<R>> = std::iter::repeat_with(|| None).take(items.len()).collect();
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads)
+            .map(|worker| {
+                let state = prepare();
+                scope.spawn(move || {
+                    items
+                        .iter()
+                        .enumerate()
+                        .skip(worker)
+                        .step_by(threads)
+                        .map(|(i, item)| (i, f(&state, item)))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for handle in handles {
+            let results = handle.join().map_err(|_| TrainError::WorkerPanicked)?;
+            for (i, result) in results {
+                slots[i] = Some(result);
+            }
+        }
+        Ok::<(), TrainError>(())
+    })?;
+    slots
+        .into_iter()
+        .map(|slot| slot.ok_or(TrainError::WorkerPanicked))
+        .collect()
 }
 
 impl Trainer {
@@ -133,7 +217,8 @@ impl Trainer {
             .init()
     }
 
-    /// A fresh run: the model initialised from `config.seed`.
+    /// A fresh run: the model initialised from `config.seed`, on one thread per available
+    /// core (at most one per frame of a step).
     pub fn new(
         config: TrainConfig,
         model_config: TokenizerConfig,
@@ -159,6 +244,7 @@ impl Trainer {
             }
             (_, false) => None,
         };
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         Ok(Self {
             optimizer: Self::optimizer(&config),
             discriminator_optimizer: Self::optimizer(&config),
@@ -174,7 +260,20 @@ impl Trainer {
             device,
             train,
             val,
+            threads,
         })
+    }
+
+    /// Spreads each step's frames, and validation's, over `threads` worker threads (at least
+    /// one). Results are the same for any count: every frame's gradients are computed alone
+    /// and summed in frame order.
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        self.threads = threads.max(1);
+        self
+    }
+
+    pub fn threads(&self) -> usize {
+        self.threads
     }
 
     /// Continues the run in `run` from its newest checkpoint: parameters, optimiser moments,
@@ -220,144 +319,77 @@ impl Trainer {
         self.step >= self.config.loss.gan_start
     }
 
-    /// The loss of one drawn frame and ray set, and its parts.
-    fn losses(&mut self) -> StepLosses {
-        let device = self.device.clone();
-        let frame_index = self.rng.below(self.train.len());
-        let frame = &self.train[frame_index];
-        let latent = self.model.encode(frame.encoder.to_input(&device)).latent;
-        let voxels = self.model.voxels(latent);
-        let depth_row = Tensor::<2>::from_data(
-            TensorData::new(self.depths.clone(), [1, self.depths.len()]),
-            &device,
-        );
-
-        let camera = self
-            .model_config
-            .uses(Modality::Camera)
-            .then(|| self.camera_losses(frame_index, voxels.clone(), depth_row.clone()));
-        let loss_lidar = self
-            .model_config
-            .uses(Modality::Lidar)
-            .then(|| self.lidar_loss(frame_index, voxels, depth_row));
-        StepLosses { camera, loss_lidar }
-    }
-
-    /// Renders whole cameras: the upsampler is a CNN and needs each camera's full ray grid.
-    fn camera_losses(
-        &mut self,
-        frame_index: usize,
-        voxels: Tensor<5>,
-        depth_row: Tensor<2>,
-    ) -> CameraLosses {
-        let device = self.device.clone();
-        let frame = &self.train[frame_index];
-        let rays = &frame.rays;
-        let per_camera = rays.rows * rays.columns;
-        let cameras = self
-            .rng
-            .choose(rays.cameras, self.config.rays.cameras_per_step);
-        let indices: Vec<usize> = cameras
-            .iter()
-            .flat_map(|&c| c * per_camera..(c + 1) * per_camera)
-            .collect();
-        let camera_rays = rays.camera.subset(&indices);
-        let positions = sample_positions(&camera_rays, &self.depths, &self.placement, &device);
-        let rendered = self
-            .model
-            .render_rays(voxels, positions, camera_rays.len(), depth_row);
-        let rgb = self
-            .model
-            .camera_rgb(rendered.features, cameras.len(), rays.rows, rays.columns);
-        let [_, _, h, w] = frame.encoder.image_shape;
-        let plane = 3 * h * w;
-        let target: Vec<f32> = cameras
-            .iter()
-            .flat_map(|&c| {
-                frame.encoder.images[c * plane..(c + 1) * plane]
-                    .iter()
-                    .copied()
-            })
-            .collect();
-        let target =
-            Tensor::<4>::from_data(TensorData::new(target, [cameras.len(), 3, h, w]), &device);
-        let loss_rgb = l1(rgb.clone(), target.clone());
-        CameraLosses {
-            rgb,
-            target,
-            loss_rgb,
+    /// The frame and rays of one frame of the step: a frame, then its cameras, then its LiDAR
+    /// rays, in that order from the run's RNG.
+    fn draw(&mut self) -> FrameDraw {
+        let frame = self.rng.below(self.train.len());
+        let data = &self.train[frame];
+        let cameras = if self.model_config.uses(Modality::Camera) {
+            self.rng
+                .choose(data.rays.cameras, self.config.rays.cameras_per_step)
+        } else {
+            Vec::new()
+        };
+        let lidar = if self.model_config.uses(Modality::Lidar) {
+            self.rng
+                .choose(data.lidar.len(), self.config.rays.lidar_rays)
+        } else {
+            Vec::new()
+        };
+        FrameDraw {
+            frame,
+            cameras,
+            lidar,
         }
     }
 
-    /// L1 on the rendered depth along a random subset of the sweep's rays.
-    fn lidar_loss(
-        &mut self,
-        frame_index: usize,
-        voxels: Tensor<5>,
-        depth_row: Tensor<2>,
-    ) -> Tensor<1> {
-        let device = self.device.clone();
-        let frame = &self.train[frame_index];
-        let chosen = self
-            .rng
-            .choose(frame.lidar.len(), self.config.rays.lidar_rays);
-        if chosen.is_empty() {
-            return Tensor::<1>::zeros([1], &device);
-        }
-        let lidar_rays = frame.lidar.subset(&chosen);
-        let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
-        let positions = sample_positions(&lidar_rays, &self.depths, &self.placement, &device);
-        let rendered = self
-            .model
-            .render_rays(voxels, positions, lidar_rays.len(), depth_row);
-        let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), &device);
-        l1(rendered.depth, target)
-    }
-
-    /// One optimiser step.
+    /// One optimiser step over `frames_per_step` frames: each frame's loss and gradients on a
+    /// worker thread, the gradients of the mean loss summed in frame order, one clip and one
+    /// AdamW update; then the discriminator's step on every frame's cameras.
     pub fn train_step(&mut self) -> Result<StepReport, TrainError> {
         // The GAN judges camera images: a LiDAR-only model has none.
         let gan = self.gan_active() && self.model_config.uses(Modality::Camera);
-        let parts = self.losses();
-        let weights = &self.config.loss;
-        let mut loss = Tensor::<1>::zeros([1], &self.device);
-        let (mut rgb, mut lidar) = (None, None);
-        if let Some(term) = &parts.loss_lidar {
-            lidar = Some(scalar(term.clone().detach()));
-            loss = loss + term.clone().mul_scalar(weights.lidar_l1);
+        let draws: Vec<FrameDraw> = (0..self.config.frames_per_step.max(1))
+            .map(|_| self.draw())
+            .collect();
+        let inputs = StepInputs {
+            config: &self.config,
+            model_config: &self.model_config,
+            frames: &self.train,
+            depths: &self.depths,
+            placement: &self.placement,
+            perceptual: self.perceptual.as_ref(),
+            device: &self.device,
+            gan,
+            step: self.step + 1,
+        };
+        let (model, discriminator) = (&self.model, &self.discriminator);
+        let outcomes = parallel_map(
+            &draws,
+            self.threads,
+            || (replica(model), replica(discriminator)),
+            |(model, discriminator), draw| {
+                frame_outcome(&inputs, model, discriminator, draw, draws.len())
+            },
+        )?
+        .into_iter()
+        .collect::<Result<Vec<_>, _>>()?;
+
+        let count = outcomes.len() as f64;
+        let mean = |part: fn(&FrameOutcome) -> Option<f64>| {
+            let values: Option<Vec<f64>> = outcomes.iter().map(part).collect();
+            values.map(|v| v.iter().sum::<f64>() / count)
+        };
+        let (loss_rgb, loss_lidar) = (mean(|o| o.rgb), mean(|o| o.lidar));
+        let (loss_perceptual, loss_gan) = (mean(|o| o.perceptual), mean(|o| o.gan));
+        let loss = outcomes.iter().map(|o| o.loss).sum::<f64>() / count;
+        let mut accumulator = GradientsAccumulator::<Tokenizer>::new();
+        let mut images = Vec::new();
+        for outcome in outcomes {
+            accumulator.accumulate(&self.model, outcome.grads);
+            images.extend(outcome.images);
         }
-        let mut loss_perceptual = None;
-        let mut loss_gan = None;
-        if let Some(camera) = &parts.camera {
-            rgb = Some(scalar(camera.loss_rgb.clone().detach()));
-            loss = loss + camera.loss_rgb.clone().mul_scalar(weights.rgb_l1);
-            if let Some(perceptual) = &self.perceptual {
-                let term = perceptual.forward(camera.rgb.clone(), camera.target.clone());
-                loss_perceptual = Some(scalar(term.clone().detach()));
-                loss = loss + term.mul_scalar(weights.perceptual);
-            }
-            if gan {
-                let adversarial = generator_hinge(self.discriminator.forward(camera.rgb.clone()));
-                loss_gan = Some(scalar(adversarial.clone().detach()));
-                loss = loss + adversarial.mul_scalar(weights.gan_generator);
-            }
-        }
-        let value = scalar(loss.clone());
-        if !value.is_finite() {
-            let what = if !rgb.is_none_or(f64::is_finite) {
-                "RGB loss"
-            } else if !lidar.is_none_or(f64::is_finite) {
-                "LiDAR loss"
-            } else {
-                "perceptual or GAN loss"
-            };
-            return Err(TrainError::NonFinite {
-                step: self.step + 1,
-                what,
-                value,
-            });
-        }
-        let mut grads = GradientsParams::from_grads(loss.backward(), &self.model);
+        let mut grads = accumulator.grads();
         let grad_norm = clip_global_norm(
             &self.model,
             &mut grads,
@@ -380,39 +412,19 @@ impl Trainer {
         );
         self.model = self.optimizer.step(lr, self.model.clone(), grads);
 
-        // The discriminator learns from the same images, the render detached from the tokenizer.
-        let mut loss_discriminator = None;
-        if let (true, Some(camera)) = (gan, parts.camera) {
-            let real = self.discriminator.forward(camera.target);
-            let fake = self.discriminator.forward(camera.rgb.detach());
-            let d_loss =
-                discriminator_hinge(real, fake).mul_scalar(self.config.loss.gan_discriminator);
-            let d_value = scalar(d_loss.clone());
-            if !d_value.is_finite() {
-                return Err(TrainError::NonFinite {
-                    step: self.step + 1,
-                    what: "discriminator loss",
-                    value: d_value,
-                });
-            }
-            let mut d_grads = GradientsParams::from_grads(d_loss.backward(), &self.discriminator);
-            clip_global_norm(
-                &self.discriminator,
-                &mut d_grads,
-                self.config.optimizer.grad_clip_norm,
-            );
-            self.discriminator =
-                self.discriminator_optimizer
-                    .step(lr, self.discriminator.clone(), d_grads);
-            loss_discriminator = Some(d_value);
-        }
+        // The discriminator learns from the same images, the renders detached from the tokenizer.
+        let loss_discriminator = if gan && !images.is_empty() {
+            Some(self.discriminator_step(images, lr)?)
+        } else {
+            None
+        };
         self.step += 1;
         Ok(StepReport {
             step: self.step,
             lr,
-            loss: value,
-            loss_rgb: rgb,
-            loss_lidar: lidar,
+            loss,
+            loss_rgb,
+            loss_lidar,
             loss_perceptual,
             loss_gan,
             loss_discriminator,
@@ -420,8 +432,38 @@ impl Trainer {
         })
     }
 
+    /// The discriminator's hinge step on every frame's renders and inputs; returns its loss.
+    fn discriminator_step(
+        &mut self,
+        images: Vec<(Tensor<4>, Tensor<4>)>,
+        lr: f64,
+    ) -> Result<f64, TrainError> {
+        let (fake, real): (Vec<Tensor<4>>, Vec<Tensor<4>>) = images.into_iter().unzip();
+        let real = self.discriminator.forward(Tensor::cat(real, 0));
+        let fake = self.discriminator.forward(Tensor::cat(fake, 0));
+        let d_loss = discriminator_hinge(real, fake).mul_scalar(self.config.loss.gan_discriminator);
+        let d_value = scalar(d_loss.clone());
+        if !d_value.is_finite() {
+            return Err(TrainError::NonFinite {
+                step: self.step + 1,
+                what: "discriminator loss",
+                value: d_value,
+            });
+        }
+        let mut d_grads = GradientsParams::from_grads(d_loss.backward(), &self.discriminator);
+        clip_global_norm(
+            &self.discriminator,
+            &mut d_grads,
+            self.config.optimizer.grad_clip_norm,
+        );
+        self.discriminator =
+            self.discriminator_optimizer
+                .step(lr, self.discriminator.clone(), d_grads);
+        Ok(d_value)
+    }
+
     /// PSNR, SSIM and Chamfer on the first `validation_frames` held-out frames, rendering every
-    /// camera ray and every in-range LiDAR ray.
+    /// camera ray and every in-range LiDAR ray; the frames are spread over the worker threads.
     pub fn validate(&self) -> ValidationReport {
         let model = self.model.valid();
         let device = self.device.clone().inner();
@@ -430,68 +472,50 @@ impl Trainer {
             .iter()
             .take(self.config.validation_frames)
             .collect();
-        let (mut psnr_sum, mut ssim_sum, mut images) = (0.0, 0.0, 0usize);
-        let mut chamfer_sum = 0.0;
         let (cameras, lidar) = (
             self.model_config.uses(Modality::Camera),
             self.model_config.uses(Modality::Lidar),
         );
-        for frame in &frames {
-            let latent = model.encode(frame.encoder.to_input(&device)).latent;
-            let scene = VoxelScene::new(&model, &self.model_config, model.voxels(latent));
-            if cameras {
-                let (p, s, n) = self.camera_scores(&scene, frame);
+        let scores = parallel_map(
+            &frames,
+            self.threads,
+            || (),
+            |_, frame| {
+                let latent = model.encode(frame.encoder.to_input(&device)).latent;
+                let scene = VoxelScene::new(&model, &self.model_config, model.voxels(latent));
+                let camera = cameras.then(|| camera_scores(&scene, frame));
+                let chamfer = lidar.then(|| {
+                    let rendered = scene.render_dense(&frame.lidar);
+                    let to_f64 = |p: &[f32; 3]| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
+                    let predicted: Vec<[f64; 3]> =
+                        points_from_depths(&frame.lidar, &rendered.depth)
+                            .iter()
+                            .map(to_f64)
+                            .collect();
+                    let truth: Vec<[f64; 3]> = frame.lidar_points.iter().map(to_f64).collect();
+                    chamfer_in_roi(&predicted, &truth, &Roi::FOUR_D_OCC).chamfer
+                });
+                (camera, chamfer)
+            },
+        )
+        .unwrap_or_default();
+        let (mut psnr_sum, mut ssim_sum, mut images, mut chamfer_sum) = (0.0, 0.0, 0usize, 0.0);
+        for (camera, chamfer) in &scores {
+            if let Some((p, s, n)) = camera {
                 psnr_sum += p;
                 ssim_sum += s;
                 images += n;
             }
-            if lidar {
-                let rendered = scene.render_dense(&frame.lidar);
-                let to_f64 = |p: &[f32; 3]| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
-                let predicted: Vec<[f64; 3]> = points_from_depths(&frame.lidar, &rendered.depth)
-                    .iter()
-                    .map(to_f64)
-                    .collect();
-                let truth: Vec<[f64; 3]> = frame.lidar_points.iter().map(to_f64).collect();
-                chamfer_sum += chamfer_in_roi(&predicted, &truth, &Roi::FOUR_D_OCC).chamfer;
-            }
+            chamfer_sum += chamfer.unwrap_or(0.0);
         }
-        let n = frames.len().max(1) as f64;
+        let n = scores.len().max(1) as f64;
         ValidationReport {
-            frames: frames.len(),
+            frames: scores.len(),
             psnr_db: cameras.then(|| psnr_sum / images.max(1) as f64),
             ssim: cameras.then(|| ssim_sum / images.max(1) as f64),
             chamfer_m2: lidar.then(|| chamfer_sum / n),
         }
     }
-
-    /// Summed PSNR and SSIM over one frame's cameras, and how many cameras were scored.
-    fn camera_scores(&self, scene: &VoxelScene, frame: &TrainingFrame) -> (f64, f64, usize) {
-        let (mut psnr_sum, mut ssim_sum, mut images) = (0.0, 0.0, 0usize);
-        let rays = &frame.rays;
-        let rgb = scene.camera_planes(&scene.render_dense(&rays.camera), rays);
-        let [_, _, h, w] = frame.encoder.image_shape;
-        let plane = 3 * h * w;
-        for c in 0..rays.cameras {
-            let planes = |data| Planes {
-                data,
-                channels: 3,
-                height: h,
-                width: w,
-            };
-            let (a, b) = (
-                planes(&rgb[c * plane..(c + 1) * plane]),
-                planes(&frame.encoder.images[c * plane..(c + 1) * plane]),
-            );
-            if let (Ok(p), Ok(s)) = (psnr(&a, &b, 1.0), ssim(&a, &b, 1.0)) {
-                psnr_sum += p.min(100.0);
-                ssim_sum += s;
-                images += 1;
-            }
-        }
-        (psnr_sum, ssim_sum, images)
-    }
-
     /// Writes a checkpoint of the current state into `run`.
     pub fn save_checkpoint(&self, run: &Path) -> Result<PathBuf, TrainError> {
         let staged = checkpoint::staging(run, self.step)?;
@@ -529,4 +553,168 @@ impl Trainer {
     pub fn save_weights(&self, path: &Path) -> Result<(), TrainError> {
         Ok(save_weights(&self.model.valid(), path)?)
     }
+}
+
+/// One frame's losses and their gradients, on whichever thread runs it. `model` and
+/// `discriminator` are this thread's replicas. The loss is scaled by `1 / frames` so that the
+/// gradients summed over a step's frames are those of their mean.
+fn frame_outcome(
+    inputs: &StepInputs,
+    model: &Tokenizer,
+    discriminator: &PatchDiscriminator,
+    draw: &FrameDraw,
+    frames: usize,
+) -> Result<FrameOutcome, TrainError> {
+    let device = inputs.device;
+    let frame = &inputs.frames[draw.frame];
+    let weights = &inputs.config.loss;
+    let latent = model.encode(frame.encoder.to_input(device)).latent;
+    let voxels = model.voxels(latent);
+    let depth_row = Tensor::<2>::from_data(
+        TensorData::new(inputs.depths.to_vec(), [1, inputs.depths.len()]),
+        device,
+    );
+    let mut loss = Tensor::<1>::zeros([1], device);
+    let (mut rgb_value, mut lidar_value) = (None, None);
+    if inputs.model_config.uses(Modality::Lidar) {
+        let term = lidar_loss(
+            inputs,
+            model,
+            frame,
+            &draw.lidar,
+            voxels.clone(),
+            depth_row.clone(),
+        );
+        lidar_value = Some(scalar(term.clone().detach()));
+        loss = loss + term.mul_scalar(weights.lidar_l1);
+    }
+    let (mut perceptual_value, mut gan_value, mut images) = (None, None, None);
+    if inputs.model_config.uses(Modality::Camera) {
+        let camera = camera_losses(inputs, model, frame, &draw.cameras, voxels, depth_row);
+        rgb_value = Some(scalar(camera.loss_rgb.clone().detach()));
+        loss = loss + camera.loss_rgb.mul_scalar(weights.rgb_l1);
+        if let Some(perceptual) = inputs.perceptual {
+            let term = perceptual.forward(camera.rgb.clone(), camera.target.clone());
+            perceptual_value = Some(scalar(term.clone().detach()));
+            loss = loss + term.mul_scalar(weights.perceptual);
+        }
+        if inputs.gan {
+            let adversarial = generator_hinge(discriminator.forward(camera.rgb.clone()));
+            gan_value = Some(scalar(adversarial.clone().detach()));
+            loss = loss + adversarial.mul_scalar(weights.gan_generator);
+        }
+        images = Some((camera.rgb.detach(), camera.target));
+    }
+    let value = scalar(loss.clone().detach());
+    if !value.is_finite() {
+        let what = if !rgb_value.is_none_or(f64::is_finite) {
+            "RGB loss"
+        } else if !lidar_value.is_none_or(f64::is_finite) {
+            "LiDAR loss"
+        } else {
+            "perceptual or GAN loss"
+        };
+        return Err(TrainError::NonFinite {
+            step: inputs.step,
+            what,
+            value,
+        });
+    }
+    let scaled = loss.mul_scalar(1.0 / frames as f64);
+    Ok(FrameOutcome {
+        grads: GradientsParams::from_grads(scaled.backward(), model),
+        loss: value,
+        rgb: rgb_value,
+        lidar: lidar_value,
+        perceptual: perceptual_value,
+        gan: gan_value,
+        images,
+    })
+}
+
+/// Renders whole cameras: the upsampler is a CNN and needs each camera's full ray grid.
+fn camera_losses(
+    inputs: &StepInputs,
+    model: &Tokenizer,
+    frame: &TrainingFrame,
+    cameras: &[usize],
+    voxels: Tensor<5>,
+    depth_row: Tensor<2>,
+) -> CameraLosses {
+    let device = inputs.device;
+    let rays = &frame.rays;
+    let per_camera = rays.rows * rays.columns;
+    let indices: Vec<usize> = cameras
+        .iter()
+        .flat_map(|&c| c * per_camera..(c + 1) * per_camera)
+        .collect();
+    let camera_rays = rays.camera.subset(&indices);
+    let positions = sample_positions(&camera_rays, inputs.depths, inputs.placement, device);
+    let rendered = model.render_rays(voxels, positions, camera_rays.len(), depth_row);
+    let rgb = model.camera_rgb(rendered.features, cameras.len(), rays.rows, rays.columns);
+    let [_, _, h, w] = frame.encoder.image_shape;
+    let plane = 3 * h * w;
+    let target: Vec<f32> = cameras
+        .iter()
+        .flat_map(|&c| {
+            frame.encoder.images[c * plane..(c + 1) * plane]
+                .iter()
+                .copied()
+        })
+        .collect();
+    let target = Tensor::<4>::from_data(TensorData::new(target, [cameras.len(), 3, h, w]), device);
+    let loss_rgb = l1(rgb.clone(), target.clone());
+    CameraLosses {
+        rgb,
+        target,
+        loss_rgb,
+    }
+}
+
+/// L1 on the rendered depth along the drawn subset of the sweep's rays.
+fn lidar_loss(
+    inputs: &StepInputs,
+    model: &Tokenizer,
+    frame: &TrainingFrame,
+    chosen: &[usize],
+    voxels: Tensor<5>,
+    depth_row: Tensor<2>,
+) -> Tensor<1> {
+    let device = inputs.device;
+    if chosen.is_empty() {
+        return Tensor::<1>::zeros([1], device);
+    }
+    let lidar_rays = frame.lidar.subset(chosen);
+    let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
+    let positions = sample_positions(&lidar_rays, inputs.depths, inputs.placement, device);
+    let rendered = model.render_rays(voxels, positions, lidar_rays.len(), depth_row);
+    let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), device);
+    l1(rendered.depth, target)
+}
+
+/// Summed PSNR and SSIM over one frame's cameras, and how many cameras were scored.
+fn camera_scores(scene: &VoxelScene, frame: &TrainingFrame) -> (f64, f64, usize) {
+    let (mut psnr_sum, mut ssim_sum, mut images) = (0.0, 0.0, 0usize);
+    let rays = &frame.rays;
+    let rgb = scene.camera_planes(&scene.render_dense(&rays.camera), rays);
+    let [_, _, h, w] = frame.encoder.image_shape;
+    let plane = 3 * h * w;
+    for c in 0..rays.cameras {
+        let planes = |data| Planes {
+            data,
+            channels: 3,
+            height: h,
+            width: w,
+        };
+        let (a, b) = (
+            planes(&rgb[c * plane..(c + 1) * plane]),
+            planes(&frame.encoder.images[c * plane..(c + 1) * plane]),
+        );
+        if let (Ok(p), Ok(s)) = (psnr(&a, &b, 1.0), ssim(&a, &b, 1.0)) {
+            psnr_sum += p.min(100.0);
+            ssim_sum += s;
+            images += 1;
+        }
+    }
+    (psnr_sum, ssim_sum, images)
 }
