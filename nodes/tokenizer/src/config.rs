@@ -35,6 +35,9 @@ pub struct RenderConfig {
     pub alpha_hidden: usize,
     /// Hidden width of the RGB upsampler.
     pub upsampler_hidden: usize,
+    /// Hidden width of the background MLP, which gives camera rays leaving the grid a feature
+    /// from their direction (`decoder::background`); 0: no background, rays see zero there.
+    pub background_hidden: usize,
 }
 
 #[derive(Config, Debug, PartialEq)]

@@ -6,7 +6,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use crate::config::TokenizerConfig;
-use crate::decoder::{RgbUpsampler, RgbUpsamplerConfig, VoxelLift};
+use crate::decoder::{Background, BackgroundConfig, RgbUpsampler, RgbUpsamplerConfig, VoxelLift};
 use crate::encoder::fusion::{DeformableFusion, DeformableFusionConfig};
 use crate::encoder::{PillarNet, PillarNetConfig, scatter_to_bev};
 use crate::latent::{LatentCompress, LatentCompressConfig};
@@ -58,6 +58,7 @@ pub struct Tokenizer {
     alpha_hidden: Linear,
     alpha_out: Linear,
     upsampler: RgbUpsampler,
+    background: Option<Background>,
     #[module(skip)]
     pillar_grid: usize,
     #[module(skip)]
@@ -96,6 +97,9 @@ impl TokenizerConfig {
                 self.render.camera_stride.trailing_zeros() as usize,
             )
             .init(device),
+            background: (self.render.background_hidden > 0).then(|| {
+                BackgroundConfig::new(self.render.background_hidden, voxel_channels).init(device)
+            }),
             pillar_grid: self.bev.pillar_grid,
             pillar_channels: self.pillar_channels,
             reads_camera: self.uses(Modality::Camera),
@@ -180,15 +184,24 @@ impl Tokenizer {
             .reshape([rays, samples])
     }
 
-    /// RGB images from the rendered features of every camera ray, rays row by row per camera.
-    // [N_c * h_r * w_r, C_v] -> [N_c, 3, h_r * stride, w_r * stride]
+    /// RGB images from the rendered features of every camera ray, rays row by row per camera:
+    /// the background (when the model has one) seen through each ray's remaining transmittance
+    /// `1 − opacity`, then the upsampler.
+    // features [N_c * h_r * w_r, C_v], opacity [N_c * h_r * w_r], directions [N_c * h_r * w_r, 3]
+    // -> [N_c, 3, h_r * stride, w_r * stride]
     pub fn camera_rgb(
         &self,
         features: Tensor<2>,
+        opacity: Tensor<1>,
+        directions: Tensor<2>,
         cameras: usize,
         rows: usize,
         columns: usize,
     ) -> Tensor<4> {
+        let features = match &self.background {
+            Some(background) => background.composite(features, opacity, directions),
+            None => features,
+        };
         let [_, channels] = features.dims();
         let grid = features
             .reshape([cameras, rows, columns, channels])

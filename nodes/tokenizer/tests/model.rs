@@ -80,6 +80,16 @@ fn tiny_tokenizer_runs_end_to_end() {
         Distribution::Normal(0.0, 1.0),
         &device,
     );
-    let rgb = model.camera_rgb(features, cameras, rows, columns);
+    let opacity = Tensor::<1>::random(
+        [cameras * rows * columns],
+        Distribution::Uniform(0.0, 1.0),
+        &device,
+    );
+    let directions = Tensor::<2>::random(
+        [cameras * rows * columns, 3],
+        Distribution::Normal(0.0, 1.0),
+        &device,
+    );
+    let rgb = model.camera_rgb(features, opacity, directions, cameras, rows, columns);
     assert_eq!(rgb.dims(), [cameras, 3, h, w]);
 }

@@ -20,7 +20,7 @@ use crate::frame_input::{FrameInputs, FrameRays, image_planes, planes_to_image};
 use crate::modality::Modality;
 use crate::nodes::loaded_model::{LoadedModel, ModelParams};
 use crate::render::rays::Rays;
-use crate::render::{OccupancyGrid, RenderedRays, SkipOptions, VoxelScene};
+use crate::render::{OccupancyGrid, RenderedRays, SkipOptions, VoxelScene, camera_images};
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -137,11 +137,7 @@ impl RenderNode {
         rays: &FrameRays,
         out: &mut Outputs,
     ) -> Result<(), NodeError> {
-        let features = camera.features_tensor(0, camera.rays(), &self.loaded.device);
-        let rgb = self
-            .loaded
-            .model
-            .camera_rgb(features, rays.cameras, rays.rows, rays.columns);
+        let rgb = camera_images(&self.loaded.model, camera, rays, &self.loaded.device);
         let [h, w] = self.loaded.config.image_size;
         let planes = rgb
             .into_data()

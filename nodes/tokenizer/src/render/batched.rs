@@ -40,6 +40,11 @@ impl RenderedRays {
             .collect()
     }
 
+    /// The opacities as a tensor `[R]`.
+    pub fn opacity_tensor(&self, device: &Device) -> Tensor<1> {
+        Tensor::from_data(TensorData::new(self.opacity.clone(), [self.rays()]), device)
+    }
+
     /// The features of rays `start .. start + count` as a tensor `[count, C_v]`.
     pub fn features_tensor(&self, start: usize, count: usize, device: &Device) -> Tensor<2> {
         let c = self.channels;
@@ -51,6 +56,25 @@ impl RenderedRays {
             device,
         )
     }
+}
+
+/// The camera images of rendered camera rays cast as `rays.camera` is: the background through
+/// each ray's transmittance, then the RGB upsampler.
+// -> [N_c, 3, H, W] in [0, 1]
+pub fn camera_images(
+    model: &Tokenizer,
+    camera: &RenderedRays,
+    rays: &FrameRays,
+    device: &Device,
+) -> Tensor<4> {
+    model.camera_rgb(
+        camera.features_tensor(0, camera.rays(), device),
+        camera.opacity_tensor(device),
+        rays.camera.directions_tensor(device),
+        rays.cameras,
+        rays.rows,
+        rays.columns,
+    )
 }
 
 /// A tensor's values on the host, row-major.
@@ -89,12 +113,11 @@ impl<'a> VoxelScene<'a> {
     /// The RGB upsampler's images of rendered camera rays cast as `rays.camera` is: flat
     /// `[N_c, 3, H, W]` planes in [0, 1], cameras in the frame's order.
     pub fn camera_planes(&self, camera: &RenderedRays, rays: &FrameRays) -> Vec<f32> {
-        let device = self.voxels.device();
-        host_vec(self.model.camera_rgb(
-            camera.features_tensor(0, camera.rays(), &device),
-            rays.cameras,
-            rays.rows,
-            rays.columns,
+        host_vec(camera_images(
+            self.model,
+            camera,
+            rays,
+            &self.voxels.device(),
         ))
     }
 

@@ -7,7 +7,7 @@ pub mod skipping;
 pub mod trilinear;
 pub mod volume;
 
-pub use batched::{RenderedRays, VoxelScene};
+pub use batched::{RenderedRays, VoxelScene, camera_images};
 pub use skipping::{OccupancyGrid, SkipOptions};
 pub use trilinear::sample_trilinear;
 pub use volume::{expected_depth, expected_feature, log_transmittance_after, render_weights};

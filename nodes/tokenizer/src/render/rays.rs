@@ -37,6 +37,13 @@ impl Rays {
         }
     }
 
+    /// The unit directions as a tensor.
+    // -> [R, 3]
+    pub fn directions_tensor(&self, device: &Device) -> Tensor<2> {
+        let flat: Vec<f32> = self.directions.iter().flatten().copied().collect();
+        Tensor::from_data(TensorData::new(flat, [self.len(), 3]), device)
+    }
+
     fn push(&mut self, origin: DVec3, direction: DVec3) {
         let d = direction.normalize();
         self.origins
