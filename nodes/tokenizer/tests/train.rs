@@ -313,6 +313,34 @@ fn draws_are_distinct_and_reproducible() {
 }
 
 #[test]
+fn weighted_draws_follow_the_weights_and_are_distinct() {
+    // One index of three with weights 1 : 3 : 0, many times: about 1/4 and 3/4, never the third.
+    let mut rng = SplitMix64::new(11);
+    let mut counts = [0usize; 3];
+    for _ in 0..8000 {
+        counts[rng.choose_weighted(&[1.0, 3.0, 0.0], 1)[0]] += 1;
+    }
+    assert_eq!(counts[2], 0);
+    let share = counts[1] as f64 / 8000.0;
+    assert!(
+        (share - 0.75).abs() < 0.02,
+        "share of the weight-3 index: {share}"
+    );
+    // Several at once are distinct; asking for all gives all, the weight-0 index last.
+    let weights: Vec<f32> = (0..50).map(|i| (i % 7) as f32).collect();
+    let picks = SplitMix64::new(3).choose_weighted(&weights, 20);
+    let mut sorted = picks.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(sorted.len(), 20);
+    assert!(picks.iter().all(|&i| weights[i] > 0.0));
+    assert_eq!(SplitMix64::new(3).choose_weighted(&weights, 20), picks);
+    let all = SplitMix64::new(3).choose_weighted(&[2.0, 0.0, 1.0], 10);
+    assert_eq!(all.len(), 3);
+    assert_eq!(all[2], 1);
+}
+
+#[test]
 fn checkpoints_keep_the_newest_and_ignore_partial_ones() {
     let mut trainer = fixed_batch_trainer(1e-3);
     let dir = tempfile::tempdir().expect("tempdir");

@@ -26,10 +26,26 @@ pub struct OptimizerConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RayConfig {
-    /// Cameras rendered whole per step (their 1/8-grid rays, upsampled to RGB).
+    /// Cameras rendered whole per step (their ray grids, upsampled to RGB).
     pub cameras_per_step: usize,
     /// LiDAR rays drawn at random per step.
     pub lidar_rays: usize,
+    /// How the LiDAR rays are drawn.
+    #[serde(default)]
+    pub lidar_draw: LidarDraw,
+}
+
+/// Which of a sweep's returns a step renders.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LidarDraw {
+    /// Every return alike.
+    #[default]
+    Uniform,
+    /// A return with probability proportional to its range. A spinning LiDAR's returns thin
+    /// out with the square of the distance, so uniform draws leave the far scene almost
+    /// untrained, and the far returns are where a Chamfer distance's error sits.
+    ByRange,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

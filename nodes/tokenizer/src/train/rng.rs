@@ -31,6 +31,40 @@ impl SplitMix64 {
         }
     }
 
+    /// Uniform in [0, 1), from the top 53 bits.
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// `count` distinct indices of `0..weights.len()`, drawn one after another with
+    /// probability proportional to each remaining index's weight (Efraimidis and Spirakis:
+    /// the `count` largest keys `ln(u) / w`). Indices of weight 0 come last, and only when the
+    /// others run out; `count ≥ n` gives them all. Returned in draw order (largest key first).
+    pub fn choose_weighted(&mut self, weights: &[f32], count: usize) -> Vec<usize> {
+        let mut keyed: Vec<(f64, usize)> = weights
+            .iter()
+            .enumerate()
+            .map(|(i, &w)| {
+                // 1 - unit() is in (0, 1], so the logarithm is finite.
+                let log_u = (1.0 - self.unit()).ln();
+                let key = if w > 0.0 {
+                    log_u / f64::from(w)
+                } else {
+                    f64::NEG_INFINITY
+                };
+                (key, i)
+            })
+            .collect();
+        let count = count.min(keyed.len());
+        let by_key = |a: &(f64, usize), b: &(f64, usize)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
+        if count < keyed.len() && count > 0 {
+            keyed.select_nth_unstable_by(count - 1, by_key);
+        }
+        keyed.truncate(count);
+        keyed.sort_by(by_key);
+        keyed.into_iter().map(|(_, i)| i).collect()
+    }
+
     /// `count` distinct indices of `0..n` (all of them, shuffled, when count ≥ n), by a partial
     /// Fisher–Yates shuffle.
     pub fn choose(&mut self, n: usize, count: usize) -> Vec<usize> {

@@ -20,7 +20,7 @@ use crate::render::VoxelScene;
 use crate::render::rays::{VoxelPlacement, points_from_depths, sample_positions};
 use crate::train::checkpoint::{self, CheckpointError, CheckpointState};
 use crate::train::clip::clip_global_norm;
-use crate::train::config::TrainConfig;
+use crate::train::config::{LidarDraw, TrainConfig};
 use crate::train::data::TrainingFrame;
 use crate::train::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
@@ -331,8 +331,11 @@ impl Trainer {
             Vec::new()
         };
         let lidar = if self.model_config.uses(Modality::Lidar) {
-            self.rng
-                .choose(data.lidar.len(), self.config.rays.lidar_rays)
+            let count = self.config.rays.lidar_rays;
+            match self.config.rays.lidar_draw {
+                LidarDraw::Uniform => self.rng.choose(data.lidar.len(), count),
+                LidarDraw::ByRange => self.rng.choose_weighted(&data.lidar_ranges, count),
+            }
         } else {
             Vec::new()
         };
@@ -651,7 +654,14 @@ fn camera_losses(
     let camera_rays = rays.camera.subset(&indices);
     let positions = sample_positions(&camera_rays, inputs.depths, inputs.placement, device);
     let rendered = model.render_rays(voxels, positions, camera_rays.len(), depth_row);
-    let rgb = model.camera_rgb(rendered.features, cameras.len(), rays.rows, rays.columns);
+    let rgb = model.camera_rgb(
+        rendered.features,
+        rendered.opacity,
+        camera_rays.directions_tensor(device),
+        cameras.len(),
+        rays.rows,
+        rays.columns,
+    );
     let [_, _, h, w] = frame.encoder.image_shape;
     let plane = 3 * h * w;
     let target: Vec<f32> = cameras
