@@ -11,7 +11,9 @@ use crate::encoder::fusion::{DeformableFusion, DeformableFusionConfig};
 use crate::encoder::{PillarNet, PillarNetConfig, scatter_to_bev};
 use crate::latent::{LatentCompress, LatentCompressConfig};
 use crate::modality::Modality;
-use crate::render::{expected_depth, expected_feature, render_weights, sample_trilinear};
+use crate::render::{
+    VoxelField, expected_depth, expected_feature, render_weights, sample_trilinear,
+};
 use crate::swin::SwinBackbone;
 
 /// What the encoder reads for one frame.
@@ -147,24 +149,25 @@ impl Tokenizer {
     }
 
     /// The voxel field of a latent.
-    // [1, C', h, w] -> [1, C_v, Z, Y, X]
-    pub fn voxels(&self, latent: Tensor<4>) -> Tensor<5> {
+    // [1, C', h, w] -> table [Z * Y * X, C_v]
+    pub fn voxels(&self, latent: Tensor<4>) -> VoxelField {
         self.lift.forward(latent)
     }
 
-    /// Renders `rays` rays of `S` samples each. `positions` are the samples in voxel units
-    /// (`render::rays::sample_positions`), `depths` the samples' distances along the ray.
-    // voxels [1, C_v, Z, Y, X], positions [1, R * S, 3], depths [1, S]
+    /// Renders `rays` rays of `S` samples each. `positions` are the samples in voxel units, ray
+    /// by ray (`render::rays::sample_positions`), `depths` the samples' distances along the
+    /// ray.
+    // positions: R * S points, depths [1, S] or [R, S]
     pub fn render_rays(
         &self,
-        voxels: Tensor<5>,
-        positions: Tensor<3>,
+        field: &VoxelField,
+        positions: &[[f32; 3]],
         rays: usize,
         depths: Tensor<2>,
     ) -> RayRender {
         let [_, samples] = depths.dims();
-        let features = sample_trilinear(voxels, positions); // [1, R * S, C_v]
-        let [_, _, channels] = features.dims();
+        let features = sample_trilinear(field, positions); // [R * S, C_v]
+        let [_, channels] = features.dims();
         let features = features.reshape([rays, samples, channels]);
         let logits = self.alpha_logits(features.clone()); // [R, S]
         let weights = render_weights(logits); // [R, S]

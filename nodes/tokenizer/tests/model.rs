@@ -44,7 +44,8 @@ fn tiny_tokenizer_runs_end_to_end() {
 
     let voxels = model.voxels(encoded.latent);
     let [cv, z, y, x] = config.voxel_shape();
-    assert_eq!(voxels.dims(), [1, cv, z, y, x]);
+    assert_eq!(voxels.shape.voxels(), [z, y, x]);
+    assert_eq!(voxels.table.dims(), [z * y * x, cv]);
 
     // A handful of rays from near the ego origin, in arbitrary directions.
     let rays = Rays {
@@ -57,10 +58,10 @@ fn tiny_tokenizer_runs_end_to_end() {
         ],
     };
     let depths = config.render.sample_depths();
-    let positions = sample_positions(&rays, &depths, &config.voxel_placement(), &device);
+    let positions = sample_positions(&rays, &depths, &config.voxel_placement());
     let depth_row =
         Tensor::<2>::from_data(TensorData::new(depths.clone(), [1, depths.len()]), &device);
-    let rendered = model.render_rays(voxels, positions, rays.len(), depth_row);
+    let rendered = model.render_rays(&voxels, &positions, rays.len(), depth_row);
     assert_eq!(rendered.features.dims(), [4, cv]);
     let depth = rendered.depth.into_data().try_to_vec::<f32>().unwrap();
     let opacity = rendered.opacity.into_data().try_to_vec::<f32>().unwrap();

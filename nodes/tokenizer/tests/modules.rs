@@ -1,8 +1,9 @@
 //! The pillar feature net, its scatter, and the voxel lift: layouts against hand-computed
 //! positions, the padding rule, and shapes at the tiny size and (by arithmetic) the paper's.
 
-use bevworld_tokenizer::decoder::{VoxelLiftConfig, blocks_to_voxels};
+use bevworld_tokenizer::decoder::VoxelLiftConfig;
 use bevworld_tokenizer::encoder::{PillarNetConfig, scatter_to_bev};
+use bevworld_tokenizer::render::VoxelField;
 use bevworld_tokenizer::swin::SwinConfig;
 use burn::prelude::*;
 
@@ -59,15 +60,20 @@ fn scatter_puts_each_pillar_at_its_cell() {
 
 #[test]
 fn cell_blocks_land_at_their_voxels() {
+    // The head's output, entry by entry: cell (y, x), then height, patch row, patch column and
+    // feature. Each value is its own flat index, so the grid shows where each one went.
     let (c, z, r, rows, columns) = (2, 3, 2, 2, 3);
-    let per_cell = c * z * r * r;
+    let per_cell = z * r * r * c;
     let n = rows * columns * per_cell;
-    let x = Tensor::<1, Int>::arange(0..n as i64, &device())
+    let head = Tensor::<1, Int>::arange(0..n as i64, &device())
         .float()
         .reshape([1, rows, columns, per_cell]);
-    let voxels = blocks_to_voxels(x, c, z, r);
-    assert_eq!(voxels.dims(), [1, c, z, rows * r, columns * r]);
-    let v = values(voxels);
+    let field = VoxelField::from_head(head, c, z, r);
+    assert_eq!(field.shape.voxels(), [z, rows * r, columns * r]);
+    let table = values(field.table.clone());
+    let grid = field.to_grid();
+    assert_eq!(grid.dims(), [1, c, z, rows * r, columns * r]);
+    let v = values(grid);
     for y in 0..rows {
         for xx in 0..columns {
             for ci in 0..c {
@@ -75,16 +81,25 @@ fn cell_blocks_land_at_their_voxels() {
                     for ry in 0..r {
                         for rx in 0..r {
                             let source =
-                                (y * columns + xx) * per_cell + ((ci * z + zi) * r + ry) * r + rx;
+                                (y * columns + xx) * per_cell + ((zi * r + ry) * r + rx) * c + ci;
                             let (vy, vx) = (y * r + ry, xx * r + rx);
                             let target = ((ci * z + zi) * rows * r + vy) * columns * r + vx;
                             assert_eq!(v[target], source as f32);
+                            // The table row of that voxel holds it, untouched.
+                            let row = field.shape.row(vx, vy, zi);
+                            assert_eq!(table[row * c + ci], source as f32);
                         }
                     }
                 }
             }
         }
     }
+    // A grid goes into a field and back unchanged.
+    let back = VoxelField::from_grid(Tensor::<5>::from_data(
+        TensorData::new(v.clone(), [1, c, z, rows * r, columns * r]),
+        &device(),
+    ));
+    assert_eq!(values(back.to_grid()), v);
 }
 
 #[test]
@@ -92,7 +107,7 @@ fn voxel_lift_runs_at_a_small_size() {
     let config = VoxelLiftConfig::new(4, 32, [2, 2], [2, 2], 4, 4, 8, 2);
     let lift = config.init(&device());
     let voxels = lift.forward(Tensor::zeros([1, 4, 8, 8], &device()));
-    assert_eq!(voxels.dims(), [1, 4, 8, 32, 32]);
+    assert_eq!(voxels.to_grid().dims(), [1, 4, 8, 32, 32]);
     assert_eq!(config.voxel_shape(8, 8), [4, 8, 32, 32]);
 }
 

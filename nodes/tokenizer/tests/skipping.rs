@@ -8,7 +8,7 @@ mod common;
 use common::tiny;
 
 use bevworld_tokenizer::render::rays::Rays;
-use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelScene};
+use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelField, VoxelScene};
 use bevworld_tokenizer::{Tokenizer, TokenizerConfig};
 use burn::prelude::*;
 use burn::tensor::Distribution;
@@ -117,7 +117,7 @@ fn skipping_matches_dense_on_a_box_and_skips_most_samples() {
     let channels = config.decoder.voxel_channels;
     let (empty, occupied) = empty_and_occupied(&model, channels, &device);
     let voxels = box_scene(&config, &empty, &occupied, &device);
-    let scene = VoxelScene::new(&model, &config, voxels);
+    let scene = VoxelScene::new(&model, &config, VoxelField::from_grid(voxels));
     let rays = fan(360);
 
     let dense = scene.render_dense(&rays);
@@ -185,7 +185,7 @@ fn skipping_nothing_reproduces_the_dense_render() {
     let model = config.init(&device);
     let [c, z, y, x] = config.voxel_shape();
     let voxels = Tensor::<5>::random([1, c, z, y, x], Distribution::Normal(0.0, 1.0), &device);
-    let scene = VoxelScene::new(&model, &config, voxels);
+    let scene = VoxelScene::new(&model, &config, VoxelField::from_grid(voxels));
     let rays = fan(64);
     let keep_all = SkipOptions {
         alpha_threshold: -1.0,

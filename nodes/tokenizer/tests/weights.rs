@@ -32,8 +32,8 @@ fn weights_round_trip_and_mismatches_are_named() {
         &device,
     );
     assert_eq!(
-        values(model.voxels(latent.clone())),
-        values(loaded.voxels(latent))
+        values(model.voxels(latent.clone()).table),
+        values(loaded.voxels(latent).table)
     );
 
     let missing = dir.path().join("absent.bpk");

@@ -7,4 +7,4 @@ pub mod voxel_lift;
 
 pub use background::{Background, BackgroundConfig};
 pub use rgb_upsampler::{RgbUpsampler, RgbUpsamplerConfig};
-pub use voxel_lift::{VoxelLift, VoxelLiftConfig, blocks_to_voxels};
+pub use voxel_lift::{VoxelLift, VoxelLiftConfig};

@@ -1,6 +1,8 @@
 //! Lifting the 2D latent to a 3D voxel field (the paper's decoder front):
 //! linear, Swin blocks, patch expanding, more Swin blocks, then a linear layer that predicts a
-//! local `(C_v, Z, r, r)` block per cell, rearranged to `(C_v, Z, Y, X)`.
+//! local block of `Z · r · r` voxels of `C_v` features per cell. The head's output is the
+//! field's table as it is (`render::field`), ordered (height, patch row, patch column,
+//! feature); the paper's `(C_v, Z, Y, X)` grid is `VoxelField::to_grid`.
 //!
 //! Paper size: (4, 96, 96) -> (256, 96, 96) -> (128, 192, 192) -> (4096, 192, 192)
 //! -> (16, 64, 384, 384).
@@ -8,6 +10,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
+use crate::render::VoxelField;
 use crate::swin::patch::{PatchExpanding, patch_expanding};
 use crate::swin::{SwinBlock, SwinBlockConfig, run_blocks};
 
@@ -79,23 +82,15 @@ pub struct VoxelLift {
 }
 
 impl VoxelLift {
-    // [B, C', h, w] -> [B, C_v, Z, 2rh, 2rw]
-    pub fn forward(&self, latent: Tensor<4>) -> Tensor<5> {
-        let x = self.input.forward(latent.permute([0, 2, 3, 1])); // [B, h, w, D]
+    /// The voxel field of one latent: `Z` heights and `2h·r × 2w·r` columns of `C_v`
+    /// features.
+    // [1, C', h, w] -> table [2h * 2w * Z * r * r, C_v]
+    pub fn forward(&self, latent: Tensor<4>) -> VoxelField {
+        let x = self.input.forward(latent.permute([0, 2, 3, 1])); // [1, h, w, D]
         let x = run_blocks(&self.before, x);
-        let x = self.expand.forward(x); // [B, 2h, 2w, D/2]
+        let x = self.expand.forward(x); // [1, 2h, 2w, D/2]
         let x = run_blocks(&self.after, x);
-        let x = self.head.forward(x); // [B, 2h, 2w, C_v * Z * r * r]
-        blocks_to_voxels(x, self.voxel_channels, self.voxel_height, self.cell_split)
+        let x = self.head.forward(x); // [1, 2h, 2w, Z * r * r * C_v]
+        VoxelField::from_head(x, self.voxel_channels, self.voxel_height, self.cell_split)
     }
-}
-
-/// Rearranges per-cell blocks ordered (C_v, Z, r_y, r_x) into a voxel grid: block entry
-/// `(c, z, ry, rx)` of cell `(y, x)` becomes voxel `(c, z, y * r + ry, x * r + rx)`.
-// [B, H, W, C_v * Z * r * r] -> [B, C_v, Z, H * r, W * r]
-pub fn blocks_to_voxels(x: Tensor<4>, channels: usize, height: usize, r: usize) -> Tensor<5> {
-    let [batch, rows, columns, _] = x.dims();
-    x.reshape([batch, rows, columns, channels, height, r, r])
-        .permute([0, 3, 4, 1, 5, 2, 6]) // [B, C_v, Z, H, r_y, W, r_x]
-        .reshape([batch, channels, height, rows * r, columns * r])
 }

@@ -7,6 +7,7 @@ use burn::prelude::*;
 use crate::config::TokenizerConfig;
 use crate::frame_input::FrameRays;
 use crate::model::Tokenizer;
+use crate::render::field::VoxelField;
 use crate::render::rays::{Rays, VoxelPlacement, sample_positions};
 
 /// What rendering a set of rays gives, on the host.
@@ -86,8 +87,7 @@ pub(crate) fn host_vec<const D: usize>(tensor: Tensor<D>) -> Vec<f32> {
 /// sample depths and where the grid sits in the ego frame.
 pub struct VoxelScene<'a> {
     pub model: &'a Tokenizer,
-    /// `[1, C_v, Z, Y, X]`.
-    pub voxels: Tensor<5>,
+    pub voxels: VoxelField,
     pub depths: Vec<f32>,
     pub placement: VoxelPlacement,
     /// Rays per pass through the model, which bounds memory.
@@ -96,7 +96,7 @@ pub struct VoxelScene<'a> {
 
 impl<'a> VoxelScene<'a> {
     /// The scene of `voxels` with the sampling the model's config prescribes.
-    pub fn new(model: &'a Tokenizer, config: &TokenizerConfig, voxels: Tensor<5>) -> Self {
+    pub fn new(model: &'a Tokenizer, config: &TokenizerConfig, voxels: VoxelField) -> Self {
         Self {
             model,
             voxels,
@@ -107,7 +107,7 @@ impl<'a> VoxelScene<'a> {
     }
 
     pub fn channels(&self) -> usize {
-        self.voxels.dims()[1]
+        self.voxels.shape.channels
     }
 
     /// The RGB upsampler's images of rendered camera rays cast as `rays.camera` is: flat
@@ -136,13 +136,10 @@ impl<'a> VoxelScene<'a> {
         for start in (0..rays.len()).step_by(chunk) {
             let indices: Vec<usize> = (start..(start + chunk).min(rays.len())).collect();
             let part = rays.subset(&indices);
-            let positions = sample_positions(&part, depths, &self.placement, &device);
-            let rendered = self.model.render_rays(
-                self.voxels.clone(),
-                positions,
-                part.len(),
-                depth_row.clone(),
-            );
+            let positions = sample_positions(&part, depths, &self.placement);
+            let rendered =
+                self.model
+                    .render_rays(&self.voxels, &positions, part.len(), depth_row.clone());
             out.features.extend(host_vec(rendered.features));
             out.depth.extend(host_vec(rendered.depth));
             out.opacity.extend(host_vec(rendered.opacity));

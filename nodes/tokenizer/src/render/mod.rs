@@ -2,12 +2,14 @@
 //! volume rendering weights.
 
 pub mod batched;
+pub mod field;
 pub mod rays;
 pub mod skipping;
 pub mod trilinear;
 pub mod volume;
 
 pub use batched::{RenderedRays, VoxelScene, camera_images};
+pub use field::{FieldShape, VoxelField};
 pub use skipping::{OccupancyGrid, SkipOptions};
 pub use trilinear::sample_trilinear;
 pub use volume::{expected_depth, expected_feature, log_transmittance_after, render_weights};

@@ -171,24 +171,21 @@ pub struct VoxelPlacement {
     pub voxel_size: [f32; 3],
 }
 
-/// Sample positions along rays in voxel units (voxel `i`'s centre at `i`), ready for
-/// `sample_trilinear`.
-// -> [1, R * S, 3]
-pub fn sample_positions(
-    rays: &Rays,
-    depths: &[f32],
-    placement: &VoxelPlacement,
-    device: &Device,
-) -> Tensor<3> {
-    let mut data = Vec::with_capacity(rays.len() * depths.len() * 3);
+impl VoxelPlacement {
+    /// An ego-frame point in voxel units (voxel `i`'s centre at `i`), as `sample_trilinear`
+    /// reads it.
+    pub fn to_voxel(&self, ego: [f32; 3]) -> [f32; 3] {
+        std::array::from_fn(|axis| (ego[axis] - self.min[axis]) / self.voxel_size[axis] - 0.5)
+    }
+}
+
+/// Sample positions along rays in voxel units, ray by ray, `depths.len()` per ray.
+pub fn sample_positions(rays: &Rays, depths: &[f32], placement: &VoxelPlacement) -> Vec<[f32; 3]> {
+    let mut positions = Vec::with_capacity(rays.len() * depths.len());
     for (o, d) in rays.origins.iter().zip(&rays.directions) {
         for &t in depths {
-            for axis in 0..3 {
-                let ego = o[axis] + t * d[axis];
-                data.push((ego - placement.min[axis]) / placement.voxel_size[axis] - 0.5);
-            }
+            positions.push(placement.to_voxel(std::array::from_fn(|axis| o[axis] + t * d[axis])));
         }
     }
-    let count = data.len() / 3;
-    Tensor::from_data(TensorData::new(data, [1, count, 3]), device)
+    positions
 }

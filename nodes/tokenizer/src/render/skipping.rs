@@ -107,12 +107,12 @@ pub struct OccupancyGrid {
 }
 
 impl OccupancyGrid {
-    /// Evaluates α at every voxel centre, `z_chunk` slices of the grid at a time.
-    // voxels [1, C_v, Z, Y, X]
+    /// Evaluates α at every voxel centre, a bounded number of table rows at a time.
     pub fn build(scene: &VoxelScene, options: &SkipOptions) -> Self {
-        let (model, voxels) = (scene.model, &scene.voxels);
-        let [_, channels, z, y, x] = voxels.dims();
-        let device = voxels.device();
+        let (model, field) = (scene.model, &scene.voxels);
+        let shape = field.shape;
+        let (channels, [z, y, x]) = (shape.channels, shape.voxels());
+        let device = field.device();
         // Compare logits with logit(threshold) rather than α with the threshold: a vectorised
         // sigmoid is accurate in absolute terms only (~1e-6 here), which would make every voxel
         // look occupied at small thresholds, while the logit is exact.
@@ -124,18 +124,27 @@ impl OccupancyGrid {
         };
         let logits_of =
             |features: Tensor<3>| -> Vec<f32> { host_vec(model.alpha_logits(features)) };
-        // Bound the [cells, C_v] intermediate to about 4 M values.
-        let z_chunk = (4 << 20) / (y * x * channels.max(1)).max(1);
-        let z_chunk = z_chunk.clamp(1, z.max(1));
-        let mut fine = Vec::with_capacity(z * y * x);
-        for z0 in (0..z).step_by(z_chunk) {
-            let dz = z_chunk.min(z - z0);
-            let slab = voxels
+        // Bound the [rows, C_v] intermediate to about 4 M values.
+        let rows = shape.rows();
+        let chunk = ((4 << 20) / channels.max(1)).clamp(1, rows.max(1));
+        // By table row.
+        let mut by_row = Vec::with_capacity(rows);
+        for start in (0..rows).step_by(chunk) {
+            let count = chunk.min(rows - start);
+            let slab = field
+                .table
                 .clone()
-                .narrow(2, z0, dz)
-                .permute([0, 2, 3, 4, 1])
-                .reshape([1, dz * y * x, channels]);
-            fine.extend(logits_of(slab).into_iter().map(|s| s > threshold_logit));
+                .narrow(0, start, count)
+                .reshape([1, count, channels]);
+            by_row.extend(logits_of(slab).into_iter().map(|s| s > threshold_logit));
+        }
+        let mut fine = Vec::with_capacity(z * y * x);
+        for iz in 0..z {
+            for iy in 0..y {
+                for ix in 0..x {
+                    fine.push(by_row[shape.row(ix, iy, iz)]);
+                }
+            }
         }
         let zero = Tensor::<3>::zeros([1, 1, channels], &device);
         let outside_occupied = logits_of(zero)
@@ -210,19 +219,14 @@ impl VoxelScene<'_> {
             self.chunk,
         );
         let device = voxels.device();
-        let [_, channels, _, _, _] = voxels.dims();
+        let channels = voxels.shape.channels;
         let r_count = rays.len();
         // Per ray: the kept samples' positions (voxel units) and depths, in order along the ray.
         let mut kept: Vec<Vec<([f32; 3], f32)>> = Vec::with_capacity(r_count);
         for (o, d) in rays.origins.iter().zip(&rays.directions) {
             let mut samples = Vec::new();
             for &t in depths.iter() {
-                let mut p = [0.0f32; 3];
-                for axis in 0..3 {
-                    p[axis] = (o[axis] + t * d[axis] - placement.min[axis])
-                        / placement.voxel_size[axis]
-                        - 0.5;
-                }
+                let p = placement.to_voxel(std::array::from_fn(|axis| o[axis] + t * d[axis]));
                 if grid.keeps(p) {
                     samples.push((p, t));
                 }
@@ -250,7 +254,7 @@ impl VoxelScene<'_> {
         while !active.is_empty() {
             for batch in active.chunks(chunk.max(1)) {
                 let a = batch.len();
-                let mut positions = Vec::with_capacity(a * segment * 3);
+                let mut positions = Vec::with_capacity(a * segment);
                 let mut sample_depths = Vec::with_capacity(a * segment);
                 let mut padding = Vec::with_capacity(a * segment);
                 let mut offsets = Vec::with_capacity(a);
@@ -259,12 +263,12 @@ impl VoxelScene<'_> {
                     for i in 0..segment {
                         match next.get(i) {
                             Some((p, t)) => {
-                                positions.extend_from_slice(p);
+                                positions.push(*p);
                                 sample_depths.push(*t);
                                 padding.push(false);
                             }
                             None => {
-                                positions.extend_from_slice(&[-1e3, -1e3, -1e3]);
+                                positions.push([-1e3, -1e3, -1e3]);
                                 sample_depths.push(0.0);
                                 padding.push(true);
                             }
@@ -273,12 +277,7 @@ impl VoxelScene<'_> {
                     out.samples_evaluated += next.len() as u64;
                     offsets.push(log_t[r].exp());
                 }
-                let positions = Tensor::<3>::from_data(
-                    TensorData::new(positions, [1, a * segment, 3]),
-                    &device,
-                );
-                let features =
-                    sample_trilinear(voxels.clone(), positions).reshape([a, segment, channels]);
+                let features = sample_trilinear(voxels, &positions).reshape([a, segment, channels]);
                 let padding =
                     Tensor::<2, Bool>::from_data(TensorData::new(padding, [a, segment]), &device);
                 let logits = model

@@ -1,78 +1,73 @@
-//! Trilinear sampling of a voxel grid. Burn has no 3D grid sample, so each of the 8 corners is
-//! a row gather (`select`) from the grid laid out as `[cells, channels]`, weighted and summed.
+//! Trilinear sampling of a voxel field. Burn has no 3D grid sample: the 8 corners of every
+//! point are rows of the field's table, read with one row gather (`select`) and summed with
+//! their weights.
 //!
 //! Coordinates are in voxel units: the centre of voxel `(ix, iy, iz)` is at `(ix, iy, iz)`, so
 //! sampling at a centre returns that voxel exactly. Corners outside the grid count as zero (zero
-//! padding): a point more than one voxel outside the grid samples exactly 0. Gradients flow to
-//! the voxels (through `select`) and to the points (through the corner weights).
+//! padding): a point more than one voxel outside the grid samples exactly 0.
+//!
+//! Sample points are data (fixed depths along fixed rays), not parameters, so the corners and
+//! their weights are computed on the host and gradients flow to the voxels only. One gather
+//! for all corners matters for the backward pass: the gradient of a gather is a zero table of
+//! the field's size with the rows added in, and eight gathers would make eight such tables and
+//! add them up (at the tiny size, 4 M values each, every step).
 
 use burn::prelude::*;
 
-/// Samples `voxels` at `points`.
-///
-/// `voxels`: `[B, C, Z, Y, X]`; `points`: `[B, N, 3]` as (x, y, z) in voxel units.
-/// Returns `[B, N, C]`.
-pub fn sample_trilinear(voxels: Tensor<5>, points: Tensor<3>) -> Tensor<3> {
-    let [batch, channels, depth, height, width] = voxels.dims();
-    let [_, count, _] = points.dims();
-    let device = voxels.device();
-    let cells = depth * height * width;
-    // [B * Z * Y * X, C]: one row per voxel, so a corner lookup is one row gather.
-    let table = voxels
-        .permute([0, 2, 3, 4, 1])
-        .reshape([batch * cells, channels]);
+use crate::render::field::{FieldShape, VoxelField};
 
-    let axis = |i: usize| points.clone().narrow(2, i, 1).reshape([batch, count]); // [B, N]
-    let (px, py, pz) = (axis(0), axis(1), axis(2));
-    let (x0, y0, z0) = (px.clone().floor(), py.clone().floor(), pz.clone().floor());
-    // Fractions carry the gradient with respect to the points.
-    let (fx, fy, fz) = (px - x0.clone(), py - y0.clone(), pz - z0.clone());
-    // First row of each batch item in `table`.
-    let batch_offset = Tensor::<1, Int>::arange(0..batch as i64, &device)
-        .mul_scalar(cells as i64)
-        .reshape([batch, 1]); // [B, 1]
-
-    let mut out: Option<Tensor<2>> = None; // [B * N, C]
-    for corner in 0..8 {
-        let (dx, dy, dz) = (corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
-        let weight_along = |f: &Tensor<2>, d: usize| {
-            if d == 1 {
-                f.clone()
-            } else {
-                f.clone().neg().add_scalar(1.0)
+/// The 8 corner rows and weights of each point, corner-major: entry `k · N + n` is corner `k`
+/// of point `n`. A corner outside the grid gets row 0 and weight 0.
+pub fn corners(shape: &FieldShape, points: &[[f32; 3]]) -> (Vec<i64>, Vec<f32>) {
+    let n = points.len();
+    let [depth, height, width] = shape.voxels();
+    let mut rows = vec![0i64; 8 * n];
+    let mut weights = vec![0f32; 8 * n];
+    for (i, p) in points.iter().enumerate() {
+        let base = [p[0].floor(), p[1].floor(), p[2].floor()];
+        let fraction = [p[0] - base[0], p[1] - base[1], p[2] - base[2]];
+        for corner in 0..8 {
+            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+            let mut weight = 1.0f32;
+            let mut index = [0usize; 3];
+            let mut inside = true;
+            for axis in 0..3 {
+                let c = base[axis] + d[axis] as f32;
+                let size = [width, height, depth][axis] as f32;
+                inside &= c >= 0.0 && c < size;
+                weight *= if d[axis] == 1 {
+                    fraction[axis]
+                } else {
+                    1.0 - fraction[axis]
+                };
+                index[axis] = c.max(0.0) as usize;
             }
-        };
-        let cx = x0.clone().add_scalar(dx as f32);
-        let cy = y0.clone().add_scalar(dy as f32);
-        let cz = z0.clone().add_scalar(dz as f32);
-        let inside = |c: &Tensor<2>, size: usize| {
-            c.clone()
-                .greater_equal_elem(0.0)
-                .bool_and(c.clone().lower_elem(size as f32))
-        };
-        let valid = inside(&cx, width)
-            .bool_and(inside(&cy, height))
-            .bool_and(inside(&cz, depth))
-            .float(); // [B, N]
-        let weight = weight_along(&fx, dx) * weight_along(&fy, dy) * weight_along(&fz, dz) * valid;
-        let index = cz
-            .clamp(0.0, (depth - 1) as f32)
-            .int()
-            .mul_scalar((height * width) as i64)
-            + cy.clamp(0.0, (height - 1) as f32)
-                .int()
-                .mul_scalar(width as i64)
-            + cx.clamp(0.0, (width - 1) as f32).int()
-            + batch_offset.clone(); // [B, N]
-        let rows = table.clone().select(0, index.reshape([batch * count])); // [B * N, C]
-        let term = rows * weight.reshape([batch * count, 1]);
-        out = Some(match out {
-            Some(sum) => sum + term,
-            None => term,
-        });
+            if inside && weight != 0.0 {
+                rows[corner * n + i] = shape.row(index[0], index[1], index[2]) as i64;
+                weights[corner * n + i] = weight;
+            }
+        }
     }
-    match out {
-        Some(sum) => sum.reshape([batch, count, channels]),
-        None => Tensor::zeros([batch, count, channels], &device),
+    (rows, weights)
+}
+
+/// Samples `field` at `points`, (x, y, z) in voxel units. Returns `[N, C_v]`.
+pub fn sample_trilinear(field: &VoxelField, points: &[[f32; 3]]) -> Tensor<2> {
+    let n = points.len();
+    let channels = field.shape.channels;
+    let device = field.device();
+    if n == 0 {
+        return Tensor::zeros([0, channels], &device);
     }
+    let (rows, weights) = corners(&field.shape, points);
+    let rows = Tensor::<1, Int>::from_data(TensorData::new(rows, [8 * n]), &device);
+    let weights = Tensor::<3>::from_data(TensorData::new(weights, [8, n, 1]), &device);
+    (field
+        .table
+        .clone()
+        .select(0, rows)
+        .reshape([8, n, channels])
+        * weights)
+        .sum_dim(0)
+        .reshape([n, channels])
 }

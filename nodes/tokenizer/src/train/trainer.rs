@@ -16,8 +16,8 @@ use burn::prelude::*;
 use crate::config::TokenizerConfig;
 use crate::modality::Modality;
 use crate::model::Tokenizer;
-use crate::render::VoxelScene;
 use crate::render::rays::{VoxelPlacement, points_from_depths, sample_positions};
+use crate::render::{VoxelField, VoxelScene};
 use crate::train::checkpoint::{self, CheckpointError, CheckpointState};
 use crate::train::clip::clip_global_norm;
 use crate::train::config::{LidarDraw, TrainConfig};
@@ -585,7 +585,7 @@ fn frame_outcome(
             model,
             frame,
             &draw.lidar,
-            voxels.clone(),
+            &voxels,
             depth_row.clone(),
         );
         lidar_value = Some(scalar(term.clone().detach()));
@@ -593,7 +593,7 @@ fn frame_outcome(
     }
     let (mut perceptual_value, mut gan_value, mut images) = (None, None, None);
     if inputs.model_config.uses(Modality::Camera) {
-        let camera = camera_losses(inputs, model, frame, &draw.cameras, voxels, depth_row);
+        let camera = camera_losses(inputs, model, frame, &draw.cameras, &voxels, depth_row);
         rgb_value = Some(scalar(camera.loss_rgb.clone().detach()));
         loss = loss + camera.loss_rgb.mul_scalar(weights.rgb_l1);
         if let Some(perceptual) = inputs.perceptual {
@@ -641,7 +641,7 @@ fn camera_losses(
     model: &Tokenizer,
     frame: &TrainingFrame,
     cameras: &[usize],
-    voxels: Tensor<5>,
+    voxels: &VoxelField,
     depth_row: Tensor<2>,
 ) -> CameraLosses {
     let device = inputs.device;
@@ -652,8 +652,8 @@ fn camera_losses(
         .flat_map(|&c| c * per_camera..(c + 1) * per_camera)
         .collect();
     let camera_rays = rays.camera.subset(&indices);
-    let positions = sample_positions(&camera_rays, inputs.depths, inputs.placement, device);
-    let rendered = model.render_rays(voxels, positions, camera_rays.len(), depth_row);
+    let positions = sample_positions(&camera_rays, inputs.depths, inputs.placement);
+    let rendered = model.render_rays(voxels, &positions, camera_rays.len(), depth_row);
     let rgb = model.camera_rgb(
         rendered.features,
         rendered.opacity,
@@ -687,7 +687,7 @@ fn lidar_loss(
     model: &Tokenizer,
     frame: &TrainingFrame,
     chosen: &[usize],
-    voxels: Tensor<5>,
+    voxels: &VoxelField,
     depth_row: Tensor<2>,
 ) -> Tensor<1> {
     let device = inputs.device;
@@ -696,8 +696,8 @@ fn lidar_loss(
     }
     let lidar_rays = frame.lidar.subset(chosen);
     let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
-    let positions = sample_positions(&lidar_rays, inputs.depths, inputs.placement, device);
-    let rendered = model.render_rays(voxels, positions, lidar_rays.len(), depth_row);
+    let positions = sample_positions(&lidar_rays, inputs.depths, inputs.placement);
+    let rendered = model.render_rays(voxels, &positions, lidar_rays.len(), depth_row);
     let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), device);
     l1(rendered.depth, target)
 }
