@@ -7,6 +7,7 @@ pub mod plot;
 
 /// The allocator the `bevworld` binary runs with, so that benchmarks time what users run
 /// (see `src/main.rs`). A library's global allocator applies to every binary that links it.
+/// Model benchmarks also call `bevworld_device::keep_freed_memory()` first, as the binary does.
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 

@@ -55,6 +55,7 @@ fn psnr(a: &[f32], b: &[f32]) -> f64 {
 }
 
 fn main() {
+    bevworld_device::keep_freed_memory();
     let (kind, device) = bevworld_device::from_env().expect("BURN_DEVICE");
     let root = bevworld_bench::manifest_dir().join("..");
     let config = TokenizerConfig::from_yaml_file(&root.join("configs/models/tokenizer-tiny.yaml"))
