@@ -110,7 +110,7 @@ fn a_few_dozen_steps_overfit_one_frame() {
     );
 }
 
-/// Every float a module holds (parameters and batch-norm statistics), in module order.
+/// Every float a module holds, in module order.
 fn module_values<M: Module>(module: &M) -> Vec<f32> {
     struct Collect(Vec<f32>);
     impl ModuleVisitor for Collect {
@@ -120,7 +120,6 @@ fn module_values<M: Module>(module: &M) -> Vec<f32> {
         }
     }
     let mut collect = Collect(Vec::new());
-    // `valid()` folds pending batch-norm statistics into their values first.
     module.valid().visit(&mut collect);
     collect.0
 }
@@ -132,8 +131,8 @@ fn values(trainer: &Trainer) -> Vec<f32> {
     all
 }
 
-/// The latent of a fixed frame in training mode, where batch norm uses the batch's statistics:
-/// it depends on the trainable parameters alone.
+/// The latent of a fixed frame on the training device: it depends on the trainable parameters
+/// alone.
 fn training_latent(trainer: &Trainer, frame: &TrainingFrame) -> Vec<f32> {
     let device = Device::flex().autodiff();
     trainer

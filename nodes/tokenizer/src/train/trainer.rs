@@ -522,9 +522,8 @@ impl Trainer {
     /// Writes a checkpoint of the current state into `run`.
     pub fn save_checkpoint(&self, run: &Path) -> Result<PathBuf, TrainError> {
         let staged = checkpoint::staging(run, self.step)?;
-        // `valid()` folds the batch norms' pending running-statistics update into their value;
-        // saving the training module directly would store statistics one step old, and a
-        // resumed run would drift from an uninterrupted one.
+        // `valid()`: the weights without the autodiff wrapper (a module with running
+        // statistics would also fold its pending update in here).
         save_weights(&self.model.valid(), &staged.model())?;
         save_module(&self.discriminator.valid(), &staged.discriminator())?;
         self.discriminator_optimizer
