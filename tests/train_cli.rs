@@ -155,7 +155,8 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
             .collect()
     };
 
-    // L→L: no PSNR is measured, so requiring one fails; the run still ends at step 2 of 10.
+    // L→L, its LiDAR rays drawn by range: no PSNR is measured, so requiring one fails; the run
+    // still ends at step 2 of 10.
     let first = bevworld_owned(&args(&[
         "--until",
         "2",
@@ -163,6 +164,8 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         "lidar",
         "--require-psnr",
         "10",
+        "--lidar-draw",
+        "by_range",
     ]));
     assert_eq!(first.status.code(), Some(1), "{}", text(&first));
     assert!(
@@ -188,6 +191,8 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         "3",
         "--require-chamfer",
         "1e9",
+        "--lidar-draw",
+        "by_range",
     ]));
     assert!(second.status.success(), "{}", text(&second));
     let last = rows().pop().expect("row");
@@ -209,6 +214,13 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
     assert_eq!(bad.status.code(), Some(1));
     assert!(
         text(&bad).contains("--modalities: unknown modality 'radar'"),
+        "{}",
+        text(&bad)
+    );
+    let bad = bevworld_owned(&args(&["--lidar-draw", "nearest"]));
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(
+        text(&bad).contains("--lidar-draw: 'nearest' is neither 'uniform' nor 'by_range'"),
         "{}",
         text(&bad)
     );

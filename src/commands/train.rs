@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use bevworld_tokenizer::train::checkpoint;
 use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
 use bevworld_tokenizer::train::metrics_log::{MetricsLog, Row};
-use bevworld_tokenizer::train::{TrainConfig, Trainer, ValidationReport};
+use bevworld_tokenizer::train::{LidarDraw, TrainConfig, Trainer, ValidationReport};
 use bevworld_tokenizer::{FrameInputs, Modality, TokenizerConfig};
 use clap::{Args, Subcommand};
 
@@ -53,6 +53,10 @@ pub struct TrainTokenizerArgs {
     /// resumed run keeps the modalities it was started with.
     #[arg(long, value_name = "camera|lidar|camera,lidar")]
     pub modalities: Option<String>,
+    /// How each step draws its LiDAR rays, overriding the config's `rays.lidar_draw`: every
+    /// return alike, or with probability proportional to its range.
+    #[arg(long, value_name = "uniform|by_range")]
+    pub lidar_draw: Option<String>,
     /// Exit with status 1 unless the final validation PSNR reaches this many dB (an automated
     /// quality check, e.g. the nuScenes keyframe fit's 25 dB).
     #[arg(long, value_name = "DB")]
@@ -97,6 +101,13 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
     }
     if let Some(steps) = args.steps {
         config.steps = steps;
+    }
+    if let Some(text) = &args.lidar_draw {
+        config.rays.lidar_draw = match text.as_str() {
+            "uniform" => LidarDraw::Uniform,
+            "by_range" => LidarDraw::ByRange,
+            other => bail!("--lidar-draw: '{other}' is neither 'uniform' nor 'by_range'"),
+        };
     }
     if let Some(vgg) = &args.vgg {
         config.perceptual_weights = Some(vgg.clone());

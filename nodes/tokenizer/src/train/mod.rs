@@ -16,5 +16,5 @@ pub mod rng;
 pub mod schedule;
 pub mod trainer;
 
-pub use config::TrainConfig;
+pub use config::{LidarDraw, TrainConfig};
 pub use trainer::{StepReport, TrainError, Trainer, ValidationReport};
