@@ -9,7 +9,6 @@ use bevworld_tokenizer::render::rays::{
     VoxelPlacement, camera_rays, inclination_azimuth, lidar_rays, points_from_depths,
     sample_depths, sample_depths_near_dense, sample_positions, spherical_direction,
 };
-use burn::prelude::*;
 use glam::DVec3;
 
 #[test]
