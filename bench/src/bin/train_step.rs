@@ -12,7 +12,7 @@
 
 use std::time::Instant;
 
-use bevworld_bench::{markdown_table, write_results};
+use bevworld_bench::{markdown_table, plot, results_dir, write_results};
 use bevworld_tokenizer::FrameInputs;
 use bevworld_tokenizer::render::rays::sample_positions;
 use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
@@ -186,7 +186,7 @@ fn main() {
         ),
         &format!("{phase_table}\n{step_table}"),
         &format!(
-            "Phases: one frame of `{}` ({} camera rays, {} LiDAR rays, {} samples each), mean of {steps} steps after {warmup} of warm-up, one thread. Steps: `Trainer::train_step` with the config's {} frames per step.",
+            "Phases: one frame of `{}` ({} camera rays, {} LiDAR rays, {} samples each), mean of {steps} steps after {warmup} of warm-up, one thread. Steps: `Trainer::train_step` with the config's {} frames per step.\n\n![phases](train_step.svg)\n",
             model_config.name,
             frames[0].rays.camera.len(),
             config.rays.lidar_rays,
@@ -194,5 +194,19 @@ fn main() {
             config.frames_per_step
         ),
         &json,
+    );
+    let bars: Vec<(String, f64)> = PHASES
+        .iter()
+        .zip(totals)
+        .map(|(name, s)| (name.to_string(), s / steps as f64 * 1e3))
+        .collect();
+    let _ = std::fs::write(
+        results_dir().join("train_step.svg"),
+        plot::bars(
+            "Tokenizer training step: one frame's phases (one thread)",
+            "ms",
+            &bars,
+            false,
+        ),
     );
 }
