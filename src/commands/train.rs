@@ -103,11 +103,9 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         config.steps = steps;
     }
     if let Some(text) = &args.lidar_draw {
-        config.rays.lidar_draw = match text.as_str() {
-            "uniform" => LidarDraw::Uniform,
-            "by_range" => LidarDraw::ByRange,
-            other => bail!("--lidar-draw: '{other}' is neither 'uniform' nor 'by_range'"),
-        };
+        config.rays.lidar_draw = text
+            .parse::<LidarDraw>()
+            .map_err(|e| anyhow::anyhow!("--lidar-draw: {e}"))?;
     }
     if let Some(vgg) = &args.vgg {
         config.perceptual_weights = Some(vgg.clone());

@@ -565,3 +565,17 @@ fn an_ablation_model_reads_and_renders_only_its_modality() {
         );
     }
 }
+
+#[test]
+fn lidar_draw_parses_as_the_config_spells_it() {
+    use bevworld_tokenizer::train::LidarDraw;
+    for draw in [LidarDraw::Uniform, LidarDraw::ByRange] {
+        let spelled = serde_json::to_value(draw).expect("serialises");
+        let text = spelled.as_str().expect("a string");
+        assert_eq!(text.parse::<LidarDraw>(), Ok(draw), "{text}");
+    }
+    assert_eq!(
+        "nearest".parse::<LidarDraw>(),
+        Err("'nearest' is neither 'uniform' nor 'by_range'".to_string())
+    );
+}

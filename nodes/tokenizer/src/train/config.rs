@@ -48,6 +48,19 @@ pub enum LidarDraw {
     ByRange,
 }
 
+impl std::str::FromStr for LidarDraw {
+    type Err = String;
+
+    /// The config's spelling (`uniform`, `by_range`), so a flag reads as the YAML does.
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        match text {
+            "uniform" => Ok(Self::Uniform),
+            "by_range" => Ok(Self::ByRange),
+            other => Err(format!("'{other}' is neither 'uniform' nor 'by_range'")),
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LossWeights {
