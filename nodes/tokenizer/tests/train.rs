@@ -263,12 +263,14 @@ fn bad_training_configs_name_every_field() {
     config.optimizer.beta_2 = 1.0;
     config.rays.lidar_rays = 0;
     config.data.val.seed = config.data.train.seed + 3;
+    config.frames_per_step = 0;
     let problems = config.problems().join("\n");
     for field in [
         "optimizer.lr",
         "optimizer.beta_2",
         "rays.lidar_rays",
         "data.val.seed",
+        "frames_per_step",
     ] {
         assert!(
             problems.contains(field),
@@ -283,6 +285,23 @@ fn bad_training_configs_name_every_field() {
         .to_string();
     assert!(
         message.contains("bad.yaml") && message.contains("steps"),
+        "{message}"
+    );
+    // An unknown way of drawing LiDAR rays names the file and the value.
+    let shipped = std::fs::read_to_string(root().join("configs/models/train-tokenizer-tiny.yaml"))
+        .expect("shipped config");
+    assert!(shipped.contains("lidar_draw: uniform"));
+    let path = dir.path().join("bad-draw.yaml");
+    std::fs::write(
+        &path,
+        shipped.replace("lidar_draw: uniform", "lidar_draw: nearest"),
+    )
+    .expect("write");
+    let message = TrainConfig::from_yaml_file(&path)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        message.contains("bad-draw.yaml") && message.contains("nearest"),
         "{message}"
     );
 }
