@@ -86,8 +86,18 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     assert_eq!(again.status.code(), Some(1));
     assert!(text(&again).contains("--resume"), "{}", text(&again));
 
-    let resumed = call(args("5", true));
+    // The run folder's own configs resume it, and survive being read and rewritten.
+    let model_yaml = std::fs::read_to_string(run.join("tokenizer.yaml")).expect("model config");
+    let mut resume_args = args("5", true);
+    resume_args.extend(["--config".into(), run.join("train.yaml").display().to_string()]);
+    let resumed = call(resume_args);
     assert!(resumed.status.success(), "{}", text(&resumed));
+    assert_eq!(
+        std::fs::read_to_string(run.join("tokenizer.yaml")).expect("model config"),
+        model_yaml
+    );
+    let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
+    assert!(recorded.contains("steps: 5"), "{recorded}");
     assert!(
         text(&resumed).contains("resumed at step 3"),
         "{}",

@@ -159,10 +159,23 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         trainer = trainer.resume(&args.out)?;
         println!("resumed at step {}", trainer.step());
     }
-    // The configs this run used, beside its weights.
-    std::fs::copy(&args.config, args.out.join("train.yaml")).context("copying the train config")?;
+    // The configs this run used, beside its weights: the training config with the command
+    // line's overrides applied and naming the model config saved beside it, so that
+    // `--config RUN/train.yaml --resume` continues the run.
+    let mut recorded = config.clone();
+    recorded.model = PathBuf::from("tokenizer.yaml");
+    recorded.perceptual_weights = recorded
+        .perceptual_weights
+        .map(|p| std::path::absolute(&p).unwrap_or(p));
+    let run_train = args.out.join("train.yaml");
+    std::fs::write(&run_train, recorded.to_yaml()?)
+        .with_context(|| format!("writing {}", run_train.display()))?;
     if model_config.modalities == Modality::BOTH {
-        std::fs::copy(&config.model, &run_model).context("copying the model config")?;
+        // Resumed from the run folder's own config, the model config is already there;
+        // copying a file onto itself would truncate it.
+        if !same_file(&config.model, &run_model) {
+            std::fs::copy(&config.model, &run_model).context("copying the model config")?;
+        }
     } else {
         // An ablation model: its config as trained, so `encode` reads only its modalities.
         std::fs::write(&run_model, model_config.to_yaml()?)
@@ -348,4 +361,12 @@ fn plot_curves(csv: &std::path::Path, png: &std::path::Path) -> Result<()> {
 /// A figure with `decimals` digits, or "-" for a modality the model does not render.
 fn shown(value: Option<f64>, decimals: usize) -> String {
     value.map_or_else(|| "-".into(), |v| format!("{v:.decimals$}"))
+}
+
+/// Whether two paths name one existing file.
+fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
 }

@@ -155,6 +155,15 @@ impl TrainConfig {
         Ok((config, model))
     }
 
+    /// The config as YAML: `model` and `perceptual_weights` as they are now (a path resolved
+    /// by `from_yaml_file` is written resolved).
+    pub fn to_yaml(&self) -> Result<String, ConfigError> {
+        serde_saphyr::to_string(self).map_err(|e| ConfigError::Read {
+            path: self.model.display().to_string(),
+            message: e.to_string(),
+        })
+    }
+
     /// Every inconsistency, one line each, naming the field.
     pub fn problems(&self) -> Vec<String> {
         let mut problems = Vec::new();
