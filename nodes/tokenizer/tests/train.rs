@@ -598,3 +598,46 @@ fn lidar_draw_parses_as_the_config_spells_it() {
         Err("'nearest' is neither 'uniform' nor 'by_range'".to_string())
     );
 }
+
+#[test]
+fn a_synthetic_set_is_made_once_and_a_folder_of_other_scenes_is_refused() {
+    use bevworld_tokenizer::train::config::SynthSet;
+    use bevworld_tokenizer::train::data::ensure_synthetic;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let set = SynthSet {
+        dir: dir.path().join("set"),
+        seed: 5,
+        scenes: 1,
+        seconds: 0.5,
+        camera_size: "112x64".into(),
+    };
+    ensure_synthetic(&set).expect("a missing set is made");
+    assert!(!dir.path().join("set.partial").exists());
+    ensure_synthetic(&set).expect("the set it made is accepted");
+
+    let other_seed = SynthSet {
+        seed: 6,
+        ..set.clone()
+    };
+    let message = ensure_synthetic(&other_seed)
+        .expect_err("scenes of another seed")
+        .to_string();
+    for part in [
+        set.dir.display().to_string(),
+        "holds 1 scene(s) (synth-000005)".into(),
+        "from seed 6 (synth-000006)".into(),
+    ] {
+        assert!(message.contains(&part), "{message}: no '{part}'");
+    }
+    let more = SynthSet {
+        scenes: 2,
+        ..set.clone()
+    };
+    let message = ensure_synthetic(&more)
+        .expect_err("fewer scenes than asked for")
+        .to_string();
+    assert!(
+        message.contains("2 scene(s) from seed 5 (synth-000005 … synth-000006)"),
+        "{message}"
+    );
+}

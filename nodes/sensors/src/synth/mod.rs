@@ -15,4 +15,4 @@ pub mod world;
 pub mod writer;
 
 pub use scene::SceneWorld;
-pub use writer::{ImageEncoding, SynthConfig, SynthSummary, VERSION, generate};
+pub use writer::{ImageEncoding, SynthConfig, SynthSummary, VERSION, generate, scene_name};

@@ -109,6 +109,11 @@ fn rotation_wxyz(pose: &Pose) -> [f64; 4] {
     [q.w, q.x, q.y, q.z]
 }
 
+/// The name of the scene made from `seed` (its `scene.json` name and log file).
+pub fn scene_name(seed: u64) -> String {
+    format!("synth-{seed:06}")
+}
+
 /// Generates the dataset under `out`. `progress(frames_done, frames_total)` is called per frame.
 pub fn generate(
     out: &Path,
@@ -145,7 +150,7 @@ pub fn generate(
     for scene_index in 0..config.scenes {
         let seed = config.seed + scene_index as u64;
         let world = SceneWorld::new(seed, config.seconds, config.agents);
-        let name = format!("synth-{seed:06}");
+        let name = scene_name(seed);
         let log_token = token(seed, "log", 0);
         tables.log.push(Log {
             token: log_token.clone(),

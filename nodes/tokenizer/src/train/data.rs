@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
-use bevworld_sensors::synth::SynthConfig;
+use bevworld_sensors::synth::{SynthConfig, scene_name};
 use bevworld_sensors::{Dataset, DatasetOptions};
 
 use crate::frame_input::{EncoderArrays, FrameInputs, FrameRays, InputError};
@@ -37,15 +37,35 @@ pub struct TrainingFrame {
     pub lidar_points: Vec<[f32; 3]>,
 }
 
-/// Makes `set` with the synthetic world unless its folder exists.
+/// Makes `set` with the synthetic world unless its folder exists. An existing folder must hold
+/// exactly the set's scenes: one made for another seed range would silently change what a run
+/// trains or validates on.
 pub fn ensure_synthetic(set: &SynthSet) -> Result<(), DataError> {
-    if set.dir.exists() {
-        return Ok(());
-    }
     let error = |message: String| DataError::Dataset {
         path: set.dir.display().to_string(),
         message,
     };
+    if set.dir.exists() {
+        let dataset = Dataset::open(&set.dir, &DatasetOptions::default())
+            .map_err(|e| error(e.to_string()))?;
+        let mut held: Vec<&str> = dataset.scene_names();
+        held.dedup();
+        let wanted: Vec<String> = (0..set.scenes as u64)
+            .map(|k| scene_name(set.seed + k))
+            .collect();
+        if held != wanted {
+            return Err(error(format!(
+                "holds {} scene(s) ({}), but the config's set is {} scene(s) from seed {} ({}): \
+                 remove the folder to make it anew, or give the set another `dir`",
+                held.len(),
+                span(&held),
+                set.scenes,
+                set.seed,
+                span(&wanted),
+            )));
+        }
+        return Ok(());
+    }
     let (w, h) = set
         .camera_size
         .split_once('x')
@@ -65,6 +85,17 @@ pub fn ensure_synthetic(set: &SynthSet) -> Result<(), DataError> {
     bevworld_sensors::synth::generate(&staging, &config, |_, _| {})
         .map_err(|e| error(e.to_string()))?;
     std::fs::rename(&staging, &set.dir).map_err(|e| error(e.to_string()))
+}
+
+/// "first … last" of a list of scene names, or the one name.
+fn span<S: AsRef<str>>(names: &[S]) -> String {
+    match (names.first(), names.last()) {
+        (Some(first), Some(last)) if names.len() > 1 => {
+            format!("{} … {}", first.as_ref(), last.as_ref())
+        }
+        (Some(only), _) => only.as_ref().to_string(),
+        _ => "none".into(),
+    }
 }
 
 /// Prepares up to `limit` keyframes of the dataset at `dir`.
