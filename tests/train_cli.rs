@@ -89,7 +89,10 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     // The run folder's own configs resume it, and survive being read and rewritten.
     let model_yaml = std::fs::read_to_string(run.join("tokenizer.yaml")).expect("model config");
     let mut resume_args = args("5", true);
-    resume_args.extend(["--config".into(), run.join("train.yaml").display().to_string()]);
+    resume_args.extend([
+        "--config".into(),
+        run.join("train.yaml").display().to_string(),
+    ]);
     let resumed = call(resume_args);
     assert!(resumed.status.success(), "{}", text(&resumed));
     assert_eq!(
