@@ -230,6 +230,23 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         "{}",
         text(&bad)
     );
+    // A dataset that is not there fails before the run folder is made.
+    let elsewhere = dir.path().join("elsewhere");
+    let missing = dir.path().join("missing");
+    let output = bevworld(&[
+        "train",
+        "tokenizer",
+        "--out",
+        elsewhere.to_str().expect("utf-8"),
+        "--data",
+        missing.to_str().expect("utf-8"),
+        "--val",
+        data.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    assert!(text(&output).contains("missing"), "{}", text(&output));
+    assert!(!elsewhere.exists(), "{}", text(&output));
+
     let bad = bevworld_owned(&args(&["--lidar-draw", "nearest"]));
     assert_eq!(bad.status.code(), Some(1));
     assert!(

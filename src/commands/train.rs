@@ -117,8 +117,8 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
             args.out.display()
         );
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    // The run folder is made once the data have loaded: a refused or missing dataset leaves
+    // nothing behind.
     let train_dir = match &args.data {
         Some(dir) => dir.clone(),
         None => {
@@ -167,6 +167,8 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
     recorded.perceptual_weights = recorded
         .perceptual_weights
         .map(|p| std::path::absolute(&p).unwrap_or(p));
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
     let run_train = args.out.join("train.yaml");
     std::fs::write(&run_train, recorded.to_yaml()?)
         .with_context(|| format!("writing {}", run_train.display()))?;
