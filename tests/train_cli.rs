@@ -255,3 +255,67 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         text(&bad)
     );
 }
+
+#[test]
+fn a_run_on_another_ray_grid_records_it_and_resumes_on_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    synth(&data, "3");
+    let args = |extra: &[&str]| {
+        let mut args: Vec<String> = [
+            "train",
+            "tokenizer",
+            "--out",
+            run.to_str().expect("utf-8"),
+            "--data",
+            data.to_str().expect("utf-8"),
+            "--val",
+            data.to_str().expect("utf-8"),
+            "--steps",
+            "4",
+        ]
+        .map(String::from)
+        .to_vec();
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args
+    };
+    let stride_of_run = || {
+        bevworld_tokenizer::TokenizerConfig::from_yaml_file(&run.join("tokenizer.yaml"))
+            .expect("the run's model config reads back")
+            .render
+            .camera_stride
+    };
+
+    // A stride the images cannot take is refused before anything is written.
+    let bad = bevworld_owned(&args(&["--camera-stride", "3"]));
+    assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
+    assert!(
+        text(&bad).contains("--camera-stride: render.camera_stride: 3 must be a power of two"),
+        "{}",
+        text(&bad)
+    );
+    assert!(!run.exists(), "{}", text(&bad));
+
+    // The 1/2 grid (the tiny config's is 1/4) is what the run's model config records.
+    let first = bevworld_owned(&args(&["--camera-stride", "2", "--until", "1"]));
+    assert!(first.status.success(), "{}", text(&first));
+    assert_eq!(stride_of_run(), 2);
+
+    // Resumed without the flag, the run stays on its grid (its weights fit no other); naming
+    // another grid is refused.
+    let switched = bevworld_owned(&args(&["--resume", "--camera-stride", "4"]));
+    assert_eq!(switched.status.code(), Some(1), "{}", text(&switched));
+    assert!(
+        text(&switched).contains("trained on the 1/2 ray grid"),
+        "{}",
+        text(&switched)
+    );
+    let second = bevworld_owned(&args(&["--resume", "--until", "2"]));
+    assert!(second.status.success(), "{}", text(&second));
+    assert!(
+        text(&second).contains("resumed at step 1"),
+        "{}",
+        text(&second)
+    );
+    assert_eq!(stride_of_run(), 2);
+}

@@ -57,6 +57,11 @@ pub struct TrainTokenizerArgs {
     /// return alike, or with probability proportional to its range.
     #[arg(long, value_name = "uniform|by_range")]
     pub lidar_draw: Option<String>,
+    /// Cast the camera rays on the 1/N grid of each image, overriding the model config's
+    /// `render.camera_stride` (a power of two dividing the image size; the RGB upsampler gets
+    /// one doubling per factor of two). A resumed run keeps the stride it was started with.
+    #[arg(long, value_name = "N")]
+    pub camera_stride: Option<usize>,
     /// Exit with status 1 unless the final validation PSNR reaches this many dB (an automated
     /// quality check, e.g. the nuScenes keyframe fit's 25 dB).
     #[arg(long, value_name = "DB")]
@@ -86,18 +91,35 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         model_config.modalities =
             Modality::parse_list(text).map_err(|e| anyhow::anyhow!("--modalities: {e}"))?;
     }
-    // A resumed run keeps the modalities it started with; naming others would silently
-    // change the experiment halfway.
+    if let Some(stride) = args.camera_stride {
+        model_config.render.camera_stride = stride;
+        let problems = model_config.problems();
+        if let Some(problem) = problems.iter().find(|p| p.contains("camera_stride")) {
+            bail!("--camera-stride: {problem}");
+        }
+    }
+    // A resumed run keeps the modalities and the ray grid it started with; naming others
+    // would silently change the experiment halfway.
     if args.resume && run_model.exists() {
-        let started = TokenizerConfig::from_yaml_file(&run_model)?.modalities;
-        if args.modalities.is_some() && started != model_config.modalities {
+        let started = TokenizerConfig::from_yaml_file(&run_model)?;
+        if args.modalities.is_some() && started.modalities != model_config.modalities {
             bail!(
                 "--modalities: {} trained {:?}; resume it without --modalities, or choose another --out",
                 args.out.display(),
-                started
+                started.modalities
             );
         }
-        model_config.modalities = started;
+        if args.camera_stride.is_some()
+            && started.render.camera_stride != model_config.render.camera_stride
+        {
+            bail!(
+                "--camera-stride: {} trained on the 1/{} ray grid; resume it without --camera-stride, or choose another --out",
+                args.out.display(),
+                started.render.camera_stride
+            );
+        }
+        model_config.modalities = started.modalities;
+        model_config.render.camera_stride = started.render.camera_stride;
     }
     if let Some(steps) = args.steps {
         config.steps = steps;
@@ -172,14 +194,15 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
     let run_train = args.out.join("train.yaml");
     std::fs::write(&run_train, recorded.to_yaml()?)
         .with_context(|| format!("writing {}", run_train.display()))?;
-    if model_config.modalities == Modality::BOTH {
+    if model_config == TokenizerConfig::from_yaml_file(&config.model)? {
         // Resumed from the run folder's own config, the model config is already there;
         // copying a file onto itself would truncate it.
         if !same_file(&config.model, &run_model) {
             std::fs::copy(&config.model, &run_model).context("copying the model config")?;
         }
     } else {
-        // An ablation model: its config as trained, so `encode` reads only its modalities.
+        // Overridden on the command line (an ablation's modalities, another ray grid): the
+        // config as trained, so `encode` and `render` build the model these weights fit.
         std::fs::write(&run_model, model_config.to_yaml()?)
             .with_context(|| format!("writing {}", run_model.display()))?;
     }
