@@ -45,6 +45,34 @@ pub fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[rank - 1]
 }
 
+/// PSNR in dB of two images with values in [0, 1]; infinite when they are equal.
+pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
+    let mse = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| f64::from(x - y).powi(2))
+        .sum::<f64>()
+        / a.len().max(1) as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (1.0 / mse).log10()
+    }
+}
+
+/// The tiny training config's held-out synthetic set under the repository `root`, made on
+/// first use.
+pub fn held_out_synthetic_set(root: &std::path::Path) -> PathBuf {
+    let (train, _) = bevworld_tokenizer::train::TrainConfig::from_yaml_file(
+        &root.join("configs/models/train-tokenizer-tiny.yaml"),
+    )
+    .expect("training config");
+    let mut set = train.data.val.clone();
+    set.dir = root.join(&set.dir);
+    bevworld_tokenizer::train::data::ensure_synthetic(&set).expect("held-out synthetic set");
+    set.dir
+}
+
 /// A Markdown table.
 pub fn markdown_table(header: &[&str], rows: &[Vec<String>]) -> String {
     let mut out = format!(

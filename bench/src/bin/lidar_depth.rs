@@ -19,12 +19,11 @@
 
 use std::path::PathBuf;
 
-use bevworld_bench::{markdown_table, plot, results_dir, write_results};
+use bevworld_bench::{held_out_synthetic_set, markdown_table, plot, results_dir, write_results};
 use bevworld_metrics::{Roi, chamfer_in_roi};
 use bevworld_tokenizer::render::rays::{points_from_depths, sample_positions};
 use bevworld_tokenizer::render::{render_weights, sample_trilinear};
-use bevworld_tokenizer::train::TrainConfig;
-use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
+use bevworld_tokenizer::train::data::load_frames;
 use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
 use burn::prelude::*;
 
@@ -58,15 +57,7 @@ fn main() {
     let weights_path = root.join(arg(1, "nodes/tokenizer/weights/tokenizer-tiny.bpk"));
     let data_dir = match args.get(2) {
         Some(dir) => root.join(dir),
-        None => {
-            let (train, _) =
-                TrainConfig::from_yaml_file(&root.join("configs/models/train-tokenizer-tiny.yaml"))
-                    .expect("training config");
-            let mut set = train.data.val.clone();
-            set.dir = root.join(&set.dir);
-            ensure_synthetic(&set).expect("held-out synthetic set");
-            set.dir
-        }
+        None => held_out_synthetic_set(&root),
     };
     let frame_limit: usize = arg(3, "16").parse().expect("FRAMES: a whole number");
 

@@ -12,12 +12,10 @@
 
 use std::path::PathBuf;
 
-use bevworld_bench::{markdown_table, write_results};
+use bevworld_bench::{held_out_synthetic_set, markdown_table, psnr, write_results};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::TokenizerConfig;
 use bevworld_tokenizer::frame_input::image_planes;
-use bevworld_tokenizer::train::TrainConfig;
-use bevworld_tokenizer::train::data::ensure_synthetic;
 
 /// Ray grid strides: 1/2, 1/4 (the tiny config's) and 1/8 (the paper's).
 const STRIDES: [usize; 3] = [2, 4, 8];
@@ -27,15 +25,7 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let data_dir = match args.first() {
         Some(dir) => root.join(dir),
-        None => {
-            let (train, _) =
-                TrainConfig::from_yaml_file(&root.join("configs/models/train-tokenizer-tiny.yaml"))
-                    .expect("training config");
-            let mut set = train.data.val.clone();
-            set.dir = root.join(&set.dir);
-            ensure_synthetic(&set).expect("held-out synthetic set");
-            set.dir
-        }
+        None => held_out_synthetic_set(&root),
     };
     let frame_limit: usize = args
         .get(1)
@@ -151,15 +141,4 @@ fn upsample_bilinear(planes: &[f32], w: usize, h: usize, s: usize) -> Vec<f32> {
         }
     }
     out
-}
-
-/// PSNR of two images in [0, 1].
-fn psnr(a: &[f32], b: &[f32]) -> f64 {
-    let mse = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| f64::from(x - y).powi(2))
-        .sum::<f64>()
-        / a.len().max(1) as f64;
-    10.0 * (1.0 / mse.max(1e-12)).log10()
 }

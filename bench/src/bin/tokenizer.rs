@@ -16,7 +16,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use bevworld_bench::{markdown_table, percentile, write_results};
+use bevworld_bench::{markdown_table, percentile, psnr, write_results};
 use bevworld_pillarize::{Limits, Pillarizer};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::flops::TokenizerFlops;
@@ -38,20 +38,6 @@ fn time<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, f64, T) {
         .collect();
     times.sort_by(f64::total_cmp);
     (percentile(&times, 0.5), percentile(&times, 0.99), last)
-}
-
-fn psnr(a: &[f32], b: &[f32]) -> f64 {
-    let mse = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| f64::from(x - y).powi(2))
-        .sum::<f64>()
-        / a.len().max(1) as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        10.0 * (1.0 / mse).log10()
-    }
 }
 
 fn main() {
