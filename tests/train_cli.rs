@@ -27,6 +27,21 @@ fn synth(out: &Path, seed: &str) {
     assert!(output.status.success(), "{}", text(&output));
 }
 
+/// `bevworld train tokenizer` into `run`, on `data` and validated on `val`, for `steps` steps,
+/// followed by `extra`.
+fn train_args(run: &Path, data: &Path, val: &Path, steps: &str, extra: &[&str]) -> Vec<String> {
+    let mut args: Vec<String> = ["train", "tokenizer", "--out"].map(String::from).to_vec();
+    args.push(run.display().to_string());
+    args.push("--data".into());
+    args.push(data.display().to_string());
+    args.push("--val".into());
+    args.push(val.display().to_string());
+    args.push("--steps".into());
+    args.push(steps.into());
+    args.extend(extra.iter().map(|a| a.to_string()));
+    args
+}
+
 #[test]
 fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -38,24 +53,12 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     synth(&train, "1");
     synth(&val, "500");
     let args = |steps: &str, resume: bool| {
-        let mut args = vec![
-            "train".to_string(),
-            "tokenizer".into(),
-            "--out".into(),
-            run.display().to_string(),
-            "--data".into(),
-            train.display().to_string(),
-            "--val".into(),
-            val.display().to_string(),
-            "--steps".into(),
-            steps.into(),
-            "--log-every".into(),
-            "1".into(),
-        ];
-        if resume {
-            args.push("--resume".into());
-        }
-        args
+        let extra: &[&str] = if resume {
+            &["--log-every", "1", "--resume"]
+        } else {
+            &["--log-every", "1"]
+        };
+        train_args(&run, &train, &val, steps, extra)
     };
     let call = |args: Vec<String>| bevworld_owned(&args);
 
@@ -140,24 +143,9 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
     let (data, run) = (dir.path().join("data"), dir.path().join("run"));
     synth(&data, "2");
     let args = |extra: &[&str]| {
-        let mut args: Vec<String> = [
-            "train",
-            "tokenizer",
-            "--out",
-            run.to_str().expect("utf-8"),
-            "--data",
-            data.to_str().expect("utf-8"),
-            "--val",
-            data.to_str().expect("utf-8"),
-            "--steps",
-            "10",
-            "--log-every",
-            "1",
-        ]
-        .map(String::from)
-        .to_vec();
-        args.extend(extra.iter().map(|a| a.to_string()));
-        args
+        let mut all = vec!["--log-every", "1"];
+        all.extend_from_slice(extra);
+        train_args(&run, &data, &data, "10", &all)
     };
     let rows = || -> Vec<Vec<String>> {
         std::fs::read_to_string(run.join("metrics.csv"))
@@ -261,24 +249,7 @@ fn a_run_on_another_ray_grid_records_it_and_resumes_on_it() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (data, run) = (dir.path().join("data"), dir.path().join("run"));
     synth(&data, "3");
-    let args = |extra: &[&str]| {
-        let mut args: Vec<String> = [
-            "train",
-            "tokenizer",
-            "--out",
-            run.to_str().expect("utf-8"),
-            "--data",
-            data.to_str().expect("utf-8"),
-            "--val",
-            data.to_str().expect("utf-8"),
-            "--steps",
-            "4",
-        ]
-        .map(String::from)
-        .to_vec();
-        args.extend(extra.iter().map(|a| a.to_string()));
-        args
-    };
+    let args = |extra: &[&str]| train_args(&run, &data, &data, "4", extra);
     let stride_of_run = || {
         bevworld_tokenizer::TokenizerConfig::from_yaml_file(&run.join("tokenizer.yaml"))
             .expect("the run's model config reads back")
