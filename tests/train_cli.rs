@@ -290,3 +290,43 @@ fn a_run_on_another_ray_grid_records_it_and_resumes_on_it() {
     );
     assert_eq!(stride_of_run(), 2);
 }
+
+#[test]
+fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    synth(&data, "4");
+    let args = |extra: &[&str]| {
+        let mut all = vec!["--log-every", "1"];
+        all.extend_from_slice(extra);
+        train_args(&run, &data, &data, "2", &all)
+    };
+
+    // A negative weight is refused before anything is written.
+    let bad = bevworld_owned(&args(&["--lidar-distortion=-1"]));
+    assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
+    assert!(
+        text(&bad).contains("--lidar-distortion: loss.lidar_distortion: -1"),
+        "{}",
+        text(&bad)
+    );
+    assert!(!run.exists(), "{}", text(&bad));
+
+    let good = bevworld_owned(&args(&["--lidar-distortion", "0.1"]));
+    assert!(good.status.success(), "{}", text(&good));
+    let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
+    assert!(recorded.contains("lidar_distortion: 0.1"), "{recorded}");
+    // The term has the log's last column, in every training row and no validation row.
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
+    let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+    assert_eq!(header.last(), Some(&"loss_distortion"), "{csv}");
+    for line in csv.lines().skip(1) {
+        let fields: Vec<&str> = line.split(',').collect();
+        assert_eq!(fields.len(), header.len(), "{line}");
+        let term = fields[header.len() - 1].parse::<f64>().ok();
+        match fields[1] {
+            "train" => assert!(term.is_some_and(|t| t > 0.0 && t < 1.0), "{line}"),
+            _ => assert_eq!(term, None, "{line}"),
+        }
+    }
+}

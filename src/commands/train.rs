@@ -57,6 +57,12 @@ pub struct TrainTokenizerArgs {
     /// return alike, or with probability proportional to its range.
     #[arg(long, value_name = "uniform|by_range")]
     pub lidar_draw: Option<String>,
+    /// Weight of the distortion loss on the LiDAR rays' render weights (Mip-NeRF 360),
+    /// overriding the config's `loss.lidar_distortion` (0: off). It pulls each ray's weight
+    /// onto one surface, so that a ray at an object's edge does not put its point between the
+    /// object and what lies behind it.
+    #[arg(long, value_name = "W")]
+    pub lidar_distortion: Option<f64>,
     /// Cast the camera rays on the 1/N grid of each image, overriding the model config's
     /// `render.camera_stride` (a power of two dividing the image size; the RGB upsampler gets
     /// one doubling per factor of two). A resumed run keeps the stride it was started with.
@@ -128,6 +134,13 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         config.rays.lidar_draw = text
             .parse::<LidarDraw>()
             .map_err(|e| anyhow::anyhow!("--lidar-draw: {e}"))?;
+    }
+    if let Some(weight) = args.lidar_distortion {
+        config.loss.lidar_distortion = weight;
+        let problems = config.problems();
+        if let Some(problem) = problems.iter().find(|p| p.contains("lidar_distortion")) {
+            bail!("--lidar-distortion: {problem}");
+        }
     }
     if let Some(vgg) = &args.vgg {
         config.perceptual_weights = Some(vgg.clone());
@@ -243,6 +256,7 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 loss: Some(report.loss),
                 loss_rgb: report.loss_rgb,
                 loss_lidar: report.loss_lidar,
+                loss_distortion: report.loss_distortion,
                 loss_perceptual: report.loss_perceptual,
                 loss_gan: report.loss_gan,
                 loss_discriminator: report.loss_discriminator,

@@ -47,6 +47,8 @@ pub struct RayRender {
     pub depth: Tensor<1>,
     /// Sum of the weights (1 − final transmittance) per ray, `[R]`.
     pub opacity: Tensor<1>,
+    /// Render weight of every sample, `[R, S]`.
+    pub weights: Tensor<2>,
 }
 
 #[derive(Module, Debug)]
@@ -174,7 +176,8 @@ impl Tokenizer {
         RayRender {
             opacity: weights.clone().sum_dim(1).reshape([rays]),
             depth: expected_depth(weights.clone(), depths),
-            features: expected_feature(weights, features),
+            features: expected_feature(weights.clone(), features),
+            weights,
         }
     }
 

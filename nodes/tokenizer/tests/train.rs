@@ -264,6 +264,7 @@ fn bad_training_configs_name_every_field() {
     config.rays.lidar_rays = 0;
     config.data.val.seed = config.data.train.seed + 3;
     config.frames_per_step = 0;
+    config.loss.lidar_distortion = f64::NAN;
     let problems = config.problems().join("\n");
     for field in [
         "optimizer.lr",
@@ -271,6 +272,7 @@ fn bad_training_configs_name_every_field() {
         "rays.lidar_rays",
         "data.val.seed",
         "frames_per_step",
+        "loss.lidar_distortion",
     ] {
         assert!(
             problems.contains(field),
@@ -492,6 +494,39 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
         term > 0.0 && (report.loss - expected).abs() < 1e-4 * (1.0 + expected),
         "{} vs {expected}",
         report.loss
+    );
+}
+
+#[test]
+fn the_distortion_term_joins_the_loss_only_when_weighted() {
+    let (mut config, model) = configs();
+    config.rays.lidar_rays = 256;
+    assert_eq!(
+        config.loss.lidar_distortion, 0.0,
+        "off in the shipped config"
+    );
+    let mut off = trainer(config.clone(), model.clone(), frames().clone());
+    let without = off.train_step().expect("step");
+    assert_eq!(without.loss_distortion, None);
+
+    config.loss.lidar_distortion = 0.1;
+    let mut on = trainer(config, model, frames().clone());
+    let with = on.train_step().expect("step");
+    let term = with.loss_distortion.expect("distortion term");
+    // A ray's weights are non-negative and sum to at most 1, so its distortion lies in
+    // [0, 1); an untrained field spreads them, so it is above 0.
+    assert!(term > 0.0 && term < 1.0, "{term}");
+    // The same seed draws the same rays: the other terms are unchanged, and the total grows
+    // by the weighted term alone.
+    assert_eq!(
+        (with.loss_rgb, with.loss_lidar),
+        (without.loss_rgb, without.loss_lidar)
+    );
+    let expected = without.loss + 0.1 * term;
+    assert!(
+        (with.loss - expected).abs() < 1e-5 * (1.0 + expected),
+        "{} vs {expected}",
+        with.loss
     );
 }
 

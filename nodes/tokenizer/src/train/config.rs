@@ -68,6 +68,11 @@ pub struct LossWeights {
     pub rgb_l1: f64,
     /// L1 between rendered depth and LiDAR range, in metres.
     pub lidar_l1: f64,
+    /// The distortion loss (Mip-NeRF 360) on the LiDAR rays' render weights: pulls each ray's
+    /// weight onto one surface, so that its expected depth does not float between two. 0 (the
+    /// default) leaves it out.
+    #[serde(default)]
+    pub lidar_distortion: f64,
     /// The perceptual (VGG16) term; needs `perceptual_weights`, else it is off with a warning.
     pub perceptual: f64,
     /// The generator's adversarial (hinge) term on the rendered cameras.
@@ -213,6 +218,7 @@ impl TrainConfig {
         for (name, value) in [
             ("loss.rgb_l1", self.loss.rgb_l1),
             ("loss.lidar_l1", self.loss.lidar_l1),
+            ("loss.lidar_distortion", self.loss.lidar_distortion),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 problems.push(format!("{name}: {value} (accepted: a finite number >= 0)"));

@@ -1,11 +1,12 @@
 //! `RUN/metrics.csv`: one row per logged training step and per validation, appended and
 //! flushed as the run goes, so that a crashed run keeps its curve. Columns that do not apply
-//! to a row are empty.
+//! to a row are empty. A column added later goes at the end, so that the positions of the
+//! others stay those of older logs.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-pub const HEADER: &str = "step,phase,lr,loss,loss_rgb,loss_lidar,loss_perceptual,loss_gan,loss_discriminator,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s";
+pub const HEADER: &str = "step,phase,lr,loss,loss_rgb,loss_lidar,loss_perceptual,loss_gan,loss_discriminator,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s,loss_distortion";
 
 pub struct MetricsLog {
     path: PathBuf,
@@ -28,6 +29,7 @@ pub struct Row {
     pub ssim: Option<f64>,
     pub chamfer_m2: Option<f64>,
     pub elapsed_s: f64,
+    pub loss_distortion: Option<f64>,
 }
 
 impl MetricsLog {
@@ -57,7 +59,7 @@ impl MetricsLog {
     pub fn append(&mut self, row: &Row) -> std::io::Result<()> {
         let f = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         let line = format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},{}\n",
             row.step,
             row.phase,
             f(row.lr),
@@ -71,7 +73,8 @@ impl MetricsLog {
             f(row.psnr_db),
             f(row.ssim),
             f(row.chamfer_m2),
-            row.elapsed_s
+            row.elapsed_s,
+            f(row.loss_distortion)
         );
         let mut file = std::fs::OpenOptions::new().append(true).open(&self.path)?;
         file.write_all(line.as_bytes())

@@ -6,6 +6,7 @@ pub mod clip;
 pub mod config;
 pub mod data;
 pub mod discriminator;
+pub mod distortion;
 pub mod glyphs;
 pub mod losses;
 pub mod metrics_log;

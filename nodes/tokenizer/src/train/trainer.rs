@@ -25,6 +25,7 @@ use crate::train::data::TrainingFrame;
 use crate::train::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
 };
+use crate::train::distortion::distortion;
 use crate::train::losses::l1;
 use crate::train::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG16};
 use crate::train::replica::replica;
@@ -50,6 +51,7 @@ struct FrameOutcome {
     loss: f64,
     rgb: Option<f64>,
     lidar: Option<f64>,
+    distortion: Option<f64>,
     perceptual: Option<f64>,
     gan: Option<f64>,
     /// The rendered cameras (detached) and their inputs, for the discriminator's step.
@@ -113,6 +115,8 @@ pub struct StepReport {
     /// The L1 terms of the modalities the model renders (`modalities`).
     pub loss_rgb: Option<f64>,
     pub loss_lidar: Option<f64>,
+    /// The LiDAR rays' distortion term, when `loss.lidar_distortion` is above 0.
+    pub loss_distortion: Option<f64>,
     /// The perceptual term, when VGG16 weights were given.
     pub loss_perceptual: Option<f64>,
     /// The generator's adversarial term and the discriminator's loss, once the GAN started.
@@ -384,6 +388,7 @@ impl Trainer {
             values.map(|v| v.iter().sum::<f64>() / count)
         };
         let (loss_rgb, loss_lidar) = (mean(|o| o.rgb), mean(|o| o.lidar));
+        let loss_distortion = mean(|o| o.distortion);
         let (loss_perceptual, loss_gan) = (mean(|o| o.perceptual), mean(|o| o.gan));
         let loss = outcomes.iter().map(|o| o.loss).sum::<f64>() / count;
         let mut accumulator = GradientsAccumulator::<Tokenizer>::new();
@@ -428,6 +433,7 @@ impl Trainer {
             loss,
             loss_rgb,
             loss_lidar,
+            loss_distortion,
             loss_perceptual,
             loss_gan,
             loss_discriminator,
@@ -577,7 +583,7 @@ fn frame_outcome(
         device,
     );
     let mut loss = Tensor::<1>::zeros([1], device);
-    let (mut rgb_value, mut lidar_value) = (None, None);
+    let (mut rgb_value, mut lidar_value, mut distortion_value) = (None, None, None);
     if inputs.model_config.uses(Modality::Lidar) {
         let term = lidar_loss(
             inputs,
@@ -587,8 +593,12 @@ fn frame_outcome(
             &voxels,
             depth_row.clone(),
         );
-        lidar_value = Some(scalar(term.clone().detach()));
-        loss = loss + term.mul_scalar(weights.lidar_l1);
+        lidar_value = Some(scalar(term.l1.clone().detach()));
+        loss = loss + term.l1.mul_scalar(weights.lidar_l1);
+        if weights.lidar_distortion > 0.0 {
+            distortion_value = Some(scalar(term.distortion.clone().detach()));
+            loss = loss + term.distortion.mul_scalar(weights.lidar_distortion);
+        }
     }
     let (mut perceptual_value, mut gan_value, mut images) = (None, None, None);
     if inputs.model_config.uses(Modality::Camera) {
@@ -613,6 +623,8 @@ fn frame_outcome(
             "RGB loss"
         } else if !lidar_value.is_none_or(f64::is_finite) {
             "LiDAR loss"
+        } else if !distortion_value.is_none_or(f64::is_finite) {
+            "LiDAR distortion loss"
         } else {
             "perceptual or GAN loss"
         };
@@ -628,6 +640,7 @@ fn frame_outcome(
         loss: value,
         rgb: rgb_value,
         lidar: lidar_value,
+        distortion: distortion_value,
         perceptual: perceptual_value,
         gan: gan_value,
         images,
@@ -680,7 +693,14 @@ fn camera_losses(
     }
 }
 
-/// L1 on the rendered depth along the drawn subset of the sweep's rays.
+/// The LiDAR terms of one frame, over the drawn subset of the sweep's rays.
+struct LidarLosses {
+    /// L1 on the rendered depth, metres.
+    l1: Tensor<1>,
+    /// Distortion of the rays' render weights.
+    distortion: Tensor<1>,
+}
+
 fn lidar_loss(
     inputs: &StepInputs,
     model: &Tokenizer,
@@ -688,17 +708,23 @@ fn lidar_loss(
     chosen: &[usize],
     voxels: &VoxelField,
     depth_row: Tensor<2>,
-) -> Tensor<1> {
+) -> LidarLosses {
     let device = inputs.device;
     if chosen.is_empty() {
-        return Tensor::<1>::zeros([1], device);
+        return LidarLosses {
+            l1: Tensor::<1>::zeros([1], device),
+            distortion: Tensor::<1>::zeros([1], device),
+        };
     }
     let lidar_rays = frame.lidar.subset(chosen);
     let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
     let positions = sample_positions(&lidar_rays, inputs.depths, inputs.placement);
     let rendered = model.render_rays(voxels, &positions, lidar_rays.len(), depth_row);
     let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), device);
-    l1(rendered.depth, target)
+    LidarLosses {
+        l1: l1(rendered.depth, target),
+        distortion: distortion(rendered.weights),
+    }
 }
 
 /// Summed PSNR and SSIM over one frame's cameras, and how many cameras were scored.
