@@ -28,7 +28,7 @@ fn synth(out: &Path, seed: &str) {
 }
 
 /// `bevworld train tokenizer` into `run`, on `data` and validated on `val`, for `steps` steps,
-/// followed by `extra`.
+/// logging every step, followed by `extra`.
 fn train_args(run: &Path, data: &Path, val: &Path, steps: &str, extra: &[&str]) -> Vec<String> {
     let mut args: Vec<String> = ["train", "tokenizer", "--out"].map(String::from).to_vec();
     args.push(run.display().to_string());
@@ -38,6 +38,7 @@ fn train_args(run: &Path, data: &Path, val: &Path, steps: &str, extra: &[&str]) 
     args.push(val.display().to_string());
     args.push("--steps".into());
     args.push(steps.into());
+    args.extend(["--log-every".into(), "1".into()]);
     args.extend(extra.iter().map(|a| a.to_string()));
     args
 }
@@ -53,11 +54,7 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     synth(&train, "1");
     synth(&val, "500");
     let args = |steps: &str, resume: bool| {
-        let extra: &[&str] = if resume {
-            &["--log-every", "1", "--resume"]
-        } else {
-            &["--log-every", "1"]
-        };
+        let extra: &[&str] = if resume { &["--resume"] } else { &[] };
         train_args(&run, &train, &val, steps, extra)
     };
     let call = |args: Vec<String>| bevworld_owned(&args);
@@ -142,11 +139,7 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
     let dir = tempfile::tempdir().expect("tempdir");
     let (data, run) = (dir.path().join("data"), dir.path().join("run"));
     synth(&data, "2");
-    let args = |extra: &[&str]| {
-        let mut all = vec!["--log-every", "1"];
-        all.extend_from_slice(extra);
-        train_args(&run, &data, &data, "10", &all)
-    };
+    let args = |extra: &[&str]| train_args(&run, &data, &data, "10", extra);
     let rows = || -> Vec<Vec<String>> {
         std::fs::read_to_string(run.join("metrics.csv"))
             .expect("csv")
@@ -296,11 +289,7 @@ fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (data, run) = (dir.path().join("data"), dir.path().join("run"));
     synth(&data, "4");
-    let args = |extra: &[&str]| {
-        let mut all = vec!["--log-every", "1"];
-        all.extend_from_slice(extra);
-        train_args(&run, &data, &data, "2", &all)
-    };
+    let args = |extra: &[&str]| train_args(&run, &data, &data, "2", extra);
 
     // A negative weight is refused before anything is written.
     let bad = bevworld_owned(&args(&["--lidar-distortion=-1"]));
