@@ -595,9 +595,9 @@ fn frame_outcome(
         );
         lidar_value = Some(scalar(term.l1.clone().detach()));
         loss = loss + term.l1.mul_scalar(weights.lidar_l1);
-        if weights.lidar_distortion > 0.0 {
-            distortion_value = Some(scalar(term.distortion.clone().detach()));
-            loss = loss + term.distortion.mul_scalar(weights.lidar_distortion);
+        if let Some(distortion) = term.distortion {
+            distortion_value = Some(scalar(distortion.clone().detach()));
+            loss = loss + distortion.mul_scalar(weights.lidar_distortion);
         }
     }
     let (mut perceptual_value, mut gan_value, mut images) = (None, None, None);
@@ -697,8 +697,8 @@ fn camera_losses(
 struct LidarLosses {
     /// L1 on the rendered depth, metres.
     l1: Tensor<1>,
-    /// Distortion of the rays' render weights.
-    distortion: Tensor<1>,
+    /// Distortion of the rays' render weights, when its loss weight is above 0.
+    distortion: Option<Tensor<1>>,
 }
 
 fn lidar_loss(
@@ -713,7 +713,7 @@ fn lidar_loss(
     if chosen.is_empty() {
         return LidarLosses {
             l1: Tensor::<1>::zeros([1], device),
-            distortion: Tensor::<1>::zeros([1], device),
+            distortion: None,
         };
     }
     let lidar_rays = frame.lidar.subset(chosen);
@@ -723,7 +723,8 @@ fn lidar_loss(
     let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), device);
     LidarLosses {
         l1: l1(rendered.depth, target),
-        distortion: distortion(rendered.weights),
+        distortion: (inputs.config.loss.lidar_distortion > 0.0)
+            .then(|| distortion(rendered.weights)),
     }
 }
 
