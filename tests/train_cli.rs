@@ -301,21 +301,35 @@ fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
     );
     assert!(!run.exists(), "{}", text(&bad));
 
-    let good = bevworld_owned(&args(&["--lidar-distortion", "0.1"]));
-    assert!(good.status.success(), "{}", text(&good));
-    let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
-    assert!(recorded.contains("lidar_distortion: 0.1"), "{recorded}");
-    // The term has the log's last column, in every training row and no validation row.
-    let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
-    let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
-    assert_eq!(header.last(), Some(&"loss_distortion"), "{csv}");
-    for line in csv.lines().skip(1) {
-        let fields: Vec<&str> = line.split(',').collect();
-        assert_eq!(fields.len(), header.len(), "{line}");
-        let term = fields[header.len() - 1].parse::<f64>().ok();
-        match fields[1] {
-            "train" => assert!(term.is_some_and(|t| t > 0.0 && t < 1.0), "{line}"),
-            _ => assert_eq!(term, None, "{line}"),
+    // The committed config weighs the term 0.1; the flag overrides it either way.
+    for (weight, on) in [("0.25", true), ("0", false)] {
+        let run = dir.path().join(format!("run-{weight}"));
+        let good = bevworld_owned(&train_args(
+            &run,
+            &data,
+            &data,
+            "2",
+            &["--lidar-distortion", weight],
+        ));
+        assert!(good.status.success(), "{}", text(&good));
+        let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
+        assert!(
+            recorded.contains(&format!("lidar_distortion: {weight}")),
+            "{recorded}"
+        );
+        // The term has the log's last column: in every training row when on, in no
+        // validation row, and nowhere when off.
+        let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
+        let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+        assert_eq!(header.last(), Some(&"loss_distortion"), "{csv}");
+        for line in csv.lines().skip(1) {
+            let fields: Vec<&str> = line.split(',').collect();
+            assert_eq!(fields.len(), header.len(), "{line}");
+            let term = fields[header.len() - 1].parse::<f64>().ok();
+            match (fields[1], on) {
+                ("train", true) => assert!(term.is_some_and(|t| t > 0.0 && t < 1.0), "{line}"),
+                _ => assert_eq!(term, None, "{line}"),
+            }
         }
     }
 }

@@ -436,6 +436,7 @@ fn the_gan_switches_on_at_the_configured_step() {
     let w = &trainer.config.loss;
     let expected = w.rgb_l1 * report.loss_rgb.expect("rgb")
         + w.lidar_l1 * report.loss_lidar.expect("lidar")
+        + w.lidar_distortion * report.loss_distortion.expect("distortion")
         + w.gan_generator * gan;
     assert!(
         (report.loss - expected).abs() < 1e-4 * (1.0 + expected.abs()),
@@ -489,6 +490,7 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
     let w = &on.config.loss;
     let expected = w.rgb_l1 * report.loss_rgb.expect("rgb")
         + w.lidar_l1 * report.loss_lidar.expect("lidar")
+        + w.lidar_distortion * report.loss_distortion.expect("distortion")
         + w.perceptual * term;
     assert!(
         term > 0.0 && (report.loss - expected).abs() < 1e-4 * (1.0 + expected),
@@ -502,9 +504,10 @@ fn the_distortion_term_joins_the_loss_only_when_weighted() {
     let (mut config, model) = configs();
     config.rays.lidar_rays = 256;
     assert_eq!(
-        config.loss.lidar_distortion, 0.0,
-        "off in the shipped config"
+        config.loss.lidar_distortion, 0.1,
+        "on in the shipped config"
     );
+    config.loss.lidar_distortion = 0.0;
     let mut off = trainer(config.clone(), model.clone(), frames().clone());
     let without = off.train_step().expect("step");
     assert_eq!(without.loss_distortion, None);
@@ -589,9 +592,18 @@ fn an_ablation_model_reads_and_renders_only_its_modality() {
             !renders_camera,
             "{modalities:?}"
         );
+        // The distortion term lives on the LiDAR rays: only the LiDAR model has it.
+        assert_eq!(
+            report.loss_distortion.is_some(),
+            !renders_camera,
+            "{modalities:?}"
+        );
         let w = &trainer.config.loss;
         let expected = report.loss_rgb.map_or(0.0, |l| w.rgb_l1 * l)
-            + report.loss_lidar.map_or(0.0, |l| w.lidar_l1 * l);
+            + report.loss_lidar.map_or(0.0, |l| w.lidar_l1 * l)
+            + report
+                .loss_distortion
+                .map_or(0.0, |l| w.lidar_distortion * l);
         assert!(
             (report.loss - expected).abs() < 1e-5,
             "{} vs {expected}",
