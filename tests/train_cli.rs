@@ -313,10 +313,11 @@ fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
         ));
         assert!(good.status.success(), "{}", text(&good));
         let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
-        assert!(
-            recorded.contains(&format!("lidar_distortion: {weight}")),
-            "{recorded}"
-        );
+        let recorded_weight = recorded
+            .lines()
+            .find_map(|l| l.trim().strip_prefix("lidar_distortion:"))
+            .and_then(|v| v.trim().parse::<f64>().ok());
+        assert_eq!(recorded_weight, weight.parse().ok(), "{recorded}");
         // The term has the log's last column: in every training row when on, in no
         // validation row, and nowhere when off.
         let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
