@@ -287,12 +287,16 @@ fn a_run_on_another_ray_grid_records_it_and_resumes_on_it() {
 #[test]
 fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    let data = dir.path().join("data");
     synth(&data, "4");
-    let args = |extra: &[&str]| train_args(&run, &data, &data, "2", extra);
+    let args = |run: &Path, weight: &str| {
+        let flag = format!("--lidar-distortion={weight}");
+        train_args(run, &data, &data, "2", &[flag.as_str()])
+    };
 
     // A negative weight is refused before anything is written.
-    let bad = bevworld_owned(&args(&["--lidar-distortion=-1"]));
+    let run = dir.path().join("run");
+    let bad = bevworld_owned(&args(&run, "-1"));
     assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
     assert!(
         text(&bad).contains("--lidar-distortion: loss.lidar_distortion: -1"),
@@ -304,13 +308,7 @@ fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
     // The committed config weighs the term 0.1; the flag overrides it either way.
     for (weight, on) in [("0.25", true), ("0", false)] {
         let run = dir.path().join(format!("run-{weight}"));
-        let good = bevworld_owned(&train_args(
-            &run,
-            &data,
-            &data,
-            "2",
-            &["--lidar-distortion", weight],
-        ));
+        let good = bevworld_owned(&args(&run, weight));
         assert!(good.status.success(), "{}", text(&good));
         let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
         let recorded_weight = recorded
