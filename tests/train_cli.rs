@@ -132,6 +132,46 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     let output = call(graph);
     assert!(output.status.success(), "{}", text(&output));
     assert!(!text(&output).contains("untrained"), "{}", text(&output));
+
+    // Validation scores the frames as the graph does: the same camera images (the graph's
+    // are 8-bit PNGs, hence the PSNR's tolerance), and every ray of the sweep, the returns
+    // beyond the rays' far plane among them, as 4D-Occ's protocol renders every ray that has
+    // a return. The graph's CSV keeps 5 decimals of the Chamfer.
+    let column_mean = |csv: &str, column: usize| -> f64 {
+        let values: Vec<f64> = csv
+            .lines()
+            .skip(1)
+            .map(|l| {
+                l.split(',')
+                    .nth(column)
+                    .expect("column")
+                    .parse()
+                    .expect("number")
+            })
+            .collect();
+        values.iter().sum::<f64>() / values.len() as f64
+    };
+    let per_frame = std::fs::read_to_string(out.join("metrics.csv")).expect("graph metrics");
+    let (graph_psnr, graph_chamfer) = (column_mean(&per_frame, 1), column_mean(&per_frame, 3));
+    let run_csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
+    let last: Vec<f64> = run_csv
+        .lines()
+        .last()
+        .expect("row")
+        .split(',')
+        .skip(10)
+        .take(3)
+        .map(|v| v.parse().expect("number"))
+        .collect();
+    let (val_psnr, val_chamfer) = (last[0], last[2]);
+    assert!(
+        (val_psnr - graph_psnr).abs() < 0.02,
+        "validation {val_psnr} dB, graph {graph_psnr} dB"
+    );
+    assert!(
+        (val_chamfer - graph_chamfer).abs() <= (1e-4 * graph_chamfer).max(2e-5),
+        "validation {val_chamfer} m², graph {graph_chamfer} m²"
+    );
 }
 
 #[test]

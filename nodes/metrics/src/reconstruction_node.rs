@@ -1,9 +1,12 @@
 //! `reconstruction_metrics`: compares a rendered frame with the frame it came from. Camera
 //! PSNR and SSIM are taken at the rendered size, against the input image resized to it
 //! (triangle filter, as the encoder resizes); the LiDAR Chamfer distance is taken in the ego
-//! frame within an ROI (4D-Occ's by default), after dropping the returns off the ego
-//! vehicle's body (`EgoBody`) from both clouds, as 4D-Occ drops them and as the ROI applies to
-//! each cloud on its own. Means over frames go into the node's metrics.
+//! frame within an ROI (4D-Occ's by default), applied to each cloud on its own. The input's
+//! returns off the ego vehicle's body (`EgoBody`) leave the ground truth, as 4D-Occ drops them.
+//! Every rendered point counts: the render casts one ray per remaining return, and a ray it
+//! ends on the car, or short of a return beyond its far plane, is an error that 4D-Occ's
+//! protocol (a prediction for every ray with a return) counts too. Means over frames go into
+//! the node's metrics.
 
 use std::path::PathBuf;
 
@@ -88,7 +91,7 @@ pub fn score_frame(
             .collect()
     };
     let chamfer = chamfer_in_roi(
-        &to_f64(lidar.scene_ego_points()),
+        &to_f64(lidar.ego_points()),
         &to_f64(frame.lidar.scene_ego_points()),
         roi,
     );

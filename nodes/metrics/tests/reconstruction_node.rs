@@ -1,6 +1,7 @@
 //! The `reconstruction_metrics` node on the real nuScenes keyframe: the input scored against
-//! itself gives the PSNR cap and zero Chamfer, with or without the returns off the car; a bad ROI preset or a rendered image of an
-//! unknown camera is a clear error, never a panic.
+//! itself gives the PSNR cap and zero Chamfer once the returns off the car are left out, as a
+//! render leaves them out; a rendered point on the car counts; a bad ROI preset or a rendered
+//! image of an unknown camera is a clear error, never a panic.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -60,20 +61,10 @@ fn build(params: serde_json::Value) -> Result<Box<dyn Sink>, String> {
 }
 
 #[test]
-fn the_input_scored_against_itself_is_perfect() {
+fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     let frame = frame();
-    let scores = score_frame(
-        &frame,
-        &inputs_as_render(&frame),
-        &frame.lidar,
-        &Roi::FOUR_D_OCC,
-    )
-    .expect("scores");
-    assert_eq!(scores.psnr_db, 100.0, "identical images hit the cap");
-    assert!((scores.ssim - 1.0).abs() < 1e-9);
-    assert_eq!(scores.chamfer_m2, 0.0);
-    // A render casts no rays for the 8,526 returns off the car; without them the sweep is still
-    // perfect, because the ground truth leaves them out too.
+    // A render casts no rays for the 8,526 returns off the car, and the ground truth leaves
+    // them out too: the scene's own returns score perfectly.
     let scene_only = bevworld_types::PointCloud {
         points: frame
             .lidar
@@ -91,7 +82,60 @@ fn the_input_scored_against_itself_is_perfect() {
         &Roi::FOUR_D_OCC,
     )
     .expect("scores");
+    assert_eq!(scores.psnr_db, 100.0, "identical images hit the cap");
+    assert!((scores.ssim - 1.0).abs() < 1e-9);
     assert_eq!(scores.chamfer_m2, 0.0);
+
+    // Points on the car in the rendered cloud count against it: with the whole input as the
+    // "render", the ground-truth-to-render half is 0 and the other half is each point's
+    // squared distance to the nearest scene return (0 for the scene's own), found here by
+    // brute force: CD = 1/2 * sum over the car's points / every point.
+    let scores = score_frame(
+        &frame,
+        &inputs_as_render(&frame),
+        &frame.lidar,
+        &Roi::FOUR_D_OCC,
+    )
+    .expect("scores");
+    let inside = |p: &[f32; 3]| Roi::FOUR_D_OCC.contains(&p.map(f64::from));
+    let scene: Vec<[f32; 3]> = frame
+        .lidar
+        .scene_ego_points()
+        .into_iter()
+        .filter(inside)
+        .collect();
+    let rendered: Vec<[f32; 3]> = frame
+        .lidar
+        .ego_points()
+        .into_iter()
+        .filter(inside)
+        .collect();
+    let kept = frame.lidar.scene_indices();
+    let ego = frame.lidar.ego_points();
+    let on_the_car: Vec<[f32; 3]> = (0..frame.lidar.len())
+        .filter(|i| kept.binary_search(i).is_err())
+        .map(|i| ego[i])
+        .filter(inside)
+        .collect();
+    assert_eq!(on_the_car.len(), rendered.len() - scene.len());
+    let nearest_squared = |p: &[f32; 3]| {
+        scene
+            .iter()
+            .map(|q| {
+                (0..3)
+                    .map(|k| (f64::from(p[k]) - f64::from(q[k])).powi(2))
+                    .sum::<f64>()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let expected =
+        0.5 * on_the_car.iter().map(nearest_squared).sum::<f64>() / rendered.len() as f64;
+    assert!(expected > 0.0);
+    assert!(
+        (scores.chamfer_m2 - expected).abs() <= 1e-9 * expected,
+        "{} against {expected}",
+        scores.chamfer_m2
+    );
 
     let mut sink = build(serde_json::json!({})).expect("node");
     let header = Header {

@@ -472,7 +472,11 @@ impl Trainer {
     }
 
     /// PSNR, SSIM and Chamfer on the first `validation_frames` held-out frames, rendering every
-    /// camera ray and every in-range LiDAR ray; the frames are spread over the worker threads.
+    /// camera ray and every LiDAR ray of the sweep; the frames are spread over the worker
+    /// threads. The rays whose return lies beyond the far plane are rendered too, as the
+    /// `reconstruct` graph renders them and as 4D-Occ's protocol renders every ray with a
+    /// return: a ray the field ends short puts a point inside the ROI, and the score must
+    /// count it.
     pub fn validate(&self) -> ValidationReport {
         let model = self.model.valid();
         let device = self.device.clone().inner();
@@ -494,13 +498,13 @@ impl Trainer {
                 let scene = VoxelScene::new(&model, &self.model_config, model.voxels(latent));
                 let camera = cameras.then(|| camera_scores(&scene, frame));
                 let chamfer = lidar.then(|| {
-                    let rendered = scene.render_dense(&frame.lidar);
+                    let sweep = &frame.rays.lidar;
+                    let rendered = scene.render_dense(sweep);
                     let to_f64 = |p: &[f32; 3]| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
-                    let predicted: Vec<[f64; 3]> =
-                        points_from_depths(&frame.lidar, &rendered.depth)
-                            .iter()
-                            .map(to_f64)
-                            .collect();
+                    let predicted: Vec<[f64; 3]> = points_from_depths(sweep, &rendered.depth)
+                        .iter()
+                        .map(to_f64)
+                        .collect();
                     let truth: Vec<[f64; 3]> = frame.lidar_points.iter().map(to_f64).collect();
                     chamfer_in_roi(&predicted, &truth, &Roi::FOUR_D_OCC).chamfer
                 });
