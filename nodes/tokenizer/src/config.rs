@@ -38,6 +38,13 @@ pub struct RenderConfig {
     /// Hidden width of the background MLP, which gives camera rays leaving the grid a feature
     /// from their direction (`decoder::background`); 0: no background, rays see zero there.
     pub background_hidden: usize,
+    /// A ray's remaining transmittance adds depth `far` to its expected depth, as 4D-Occ's
+    /// renderer puts the probability that a ray escapes at the grid's exit. Without it (what
+    /// the shipped tiny weights were trained with) the escaping mass adds nothing, and a ray
+    /// the field leaves transparent ends near the sensor: inside the ROI, where a Chamfer
+    /// distance counts it. With it, training keeps only the returns inside the voxel box
+    /// (`bev`): a return beyond the box would ask the field for fog inside it.
+    pub escape_at_far: bool,
 }
 
 #[derive(Config, Debug, PartialEq)]

@@ -73,6 +73,9 @@ pub struct Tokenizer {
     reads_camera: bool,
     #[module(skip)]
     reads_lidar: bool,
+    /// The depth a ray's remaining transmittance adds (`render.escape_at_far`: `far`, else 0).
+    #[module(skip)]
+    escape_depth: f32,
 }
 
 impl TokenizerConfig {
@@ -108,6 +111,11 @@ impl TokenizerConfig {
             pillar_channels: self.pillar_channels,
             reads_camera: self.uses(Modality::Camera),
             reads_lidar: self.uses(Modality::Lidar),
+            escape_depth: if self.render.escape_at_far {
+                self.render.far as f32
+            } else {
+                0.0
+            },
         }
     }
 }
@@ -173,12 +181,30 @@ impl Tokenizer {
         let features = features.reshape([rays, samples, channels]);
         let logits = self.alpha_logits(features.clone()); // [R, S]
         let weights = render_weights(logits); // [R, S]
+        let opacity = weights.clone().sum_dim(1).reshape([rays]); // [R]
+        let depth = expected_depth(weights.clone(), depths); // [R]
+        let depth = if self.escape_depth > 0.0 {
+            depth
+                + opacity
+                    .clone()
+                    .neg()
+                    .add_scalar(1.0)
+                    .mul_scalar(self.escape_depth)
+        } else {
+            depth
+        };
         RayRender {
-            opacity: weights.clone().sum_dim(1).reshape([rays]),
-            depth: expected_depth(weights.clone(), depths),
+            opacity,
+            depth,
             features: expected_feature(weights.clone(), features),
             weights,
         }
+    }
+
+    /// The depth a ray's remaining transmittance adds to its expected depth (`far` with
+    /// `render.escape_at_far`, else 0).
+    pub fn escape_depth(&self) -> f32 {
+        self.escape_depth
     }
 
     /// Alpha logits `s` of voxel features (α = σ(s)): the density head every sample shares.

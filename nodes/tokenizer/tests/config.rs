@@ -34,6 +34,35 @@ fn tiny_config_is_consistent() {
     assert_eq!(config.latent_size(), 64);
     assert_eq!(config.voxel_shape(), [8, 32, 128, 128]);
     assert_eq!(config.image_feature_size(), [8, 14]);
+    // The shipped weights were trained with the escaping mass adding no depth.
+    assert!(!config.render.escape_at_far);
+}
+
+#[test]
+fn escape_at_far_is_required_checked_and_round_trips() {
+    let text = std::fs::read_to_string(model("tokenizer-tiny.yaml")).expect("tiny");
+    let set = text.replace("escape_at_far: false", "escape_at_far: true");
+    assert_ne!(set, text);
+    let config = TokenizerConfig::from_yaml(&set, "set.yaml").expect("parses");
+    assert!(config.render.escape_at_far);
+    let again =
+        TokenizerConfig::from_yaml(&config.to_yaml().expect("yaml"), "again").expect("reads");
+    assert_eq!(again, config);
+    for (bad, name) in [
+        (
+            text.replace("escape_at_far: false", "escape_at_far: 3"),
+            "wrong.yaml",
+        ),
+        (text.replace("  escape_at_far: false\n", ""), "missing.yaml"),
+    ] {
+        let message = TokenizerConfig::from_yaml(&bad, name)
+            .expect_err("refused")
+            .to_string();
+        assert!(message.contains(name), "{message}");
+        if name == "missing.yaml" {
+            assert!(message.contains("escape_at_far"), "{message}");
+        }
+    }
 }
 
 #[test]

@@ -10,6 +10,7 @@ use common::tiny;
 use bevworld_tokenizer::render::rays::Rays;
 use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelField, VoxelScene};
 use bevworld_tokenizer::{Tokenizer, TokenizerConfig};
+use burn::module::Module;
 use burn::prelude::*;
 use burn::tensor::Distribution;
 
@@ -176,6 +177,89 @@ fn skipping_matches_dense_on_a_box_and_skips_most_samples() {
         skipped.samples_evaluated,
         dense.samples_evaluated
     );
+}
+
+#[test]
+fn with_escape_at_far_a_ray_that_misses_everything_ends_at_the_far_plane() {
+    let device = Device::flex();
+    let plain_config = tiny();
+    let escape_config = TokenizerConfig {
+        render: bevworld_tokenizer::config::RenderConfig {
+            escape_at_far: true,
+            ..plain_config.render.clone()
+        },
+        ..plain_config.clone()
+    };
+    // Both models hold the same parameters; only the escape differs.
+    device.seed(7);
+    let plain = plain_config.init(&device);
+    let escaping = escape_config
+        .init(&device)
+        .load_record(plain.clone().into_record());
+    let far = plain_config.render.far as f32;
+    assert_eq!((plain.escape_depth(), escaping.escape_depth()), (0.0, far));
+    let channels = plain_config.decoder.voxel_channels;
+    let (empty, occupied) = empty_and_occupied(&plain, channels, &device);
+    let voxels = box_scene(&plain_config, &empty, &occupied, &device);
+    let rays = fan(360);
+    let options = SkipOptions {
+        alpha_threshold: 1e-5,
+        ..SkipOptions::default()
+    };
+    let render = |model: &Tokenizer, config: &TokenizerConfig| {
+        let scene = VoxelScene::new(model, config, VoxelField::from_grid(voxels.clone()));
+        let grid = OccupancyGrid::build(&scene, &options);
+        (
+            scene.render_dense(&rays),
+            scene.render_skipping(&grid, &rays, &options),
+        )
+    };
+    let (plain_dense, _) = render(&plain, &plain_config);
+    let (dense, skipped) = render(&escaping, &escape_config);
+    // The ray at 0° stops in the box: nothing escapes, and the depth is the plain one.
+    assert!(dense.opacity[0] > 0.999, "opacity {}", dense.opacity[0]);
+    assert!(
+        (dense.depth[0] - plain_dense.depth[0]).abs() < 1e-3 * far,
+        "{} {} {}",
+        dense.depth[0],
+        plain_dense.depth[0],
+        plain_dense.opacity[0]
+    );
+    // The ray at 225° crosses only empty voxels out to the far plane (at 80 m it is at
+    // x = y = −56.6 m, inside the ±80 m grid; along an axis the last samples would reach the
+    // grid's edge, where the field is not `empty`): α is below e^-20 at every sample. Plainly
+    // it ends at the sensor; escaping, at the far plane, as 4D-Occ's renderer ends it at the
+    // grid's exit. Dense and skipping renders agree on every ray.
+    let miss = 225;
+    assert!(
+        dense.opacity[miss] < 1e-6,
+        "opacity {}",
+        dense.opacity[miss]
+    );
+    assert!(
+        plain_dense.depth[miss] < 1e-3,
+        "{}",
+        plain_dense.depth[miss]
+    );
+    assert!(
+        (dense.depth[miss] - far).abs() < 1e-3,
+        "{}",
+        dense.depth[miss]
+    );
+    for r in 0..rays.len() {
+        let expected = plain_dense.depth[r] + (1.0 - plain_dense.opacity[r]) * far;
+        assert!(
+            (dense.depth[r] - expected).abs() < 1e-3 * far,
+            "ray {r}: {} against {expected}",
+            dense.depth[r]
+        );
+        assert!(
+            (dense.depth[r] - skipped.depth[r]).abs() < 0.01,
+            "ray {r}: dense depth {} vs skipping {}",
+            dense.depth[r],
+            skipped.depth[r]
+        );
+    }
 }
 
 #[test]

@@ -688,3 +688,61 @@ fn a_synthetic_set_is_made_once_and_a_folder_of_other_scenes_is_refused() {
         "{message}"
     );
 }
+
+#[test]
+fn with_escape_at_far_training_draws_only_returns_inside_the_voxel_box() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("synth");
+    let synth = SynthConfig {
+        seed: 78,
+        scenes: 1,
+        seconds: 0.5,
+        camera_width: 112,
+        camera_height: 64,
+        ..Default::default()
+    };
+    generate(&data, &synth, |_, _| {}).expect("synthetic scene");
+    let (_, tiny) = configs();
+    // A far plane of 100 m reaches every return of the synthetic LiDAR, and some lie beyond
+    // the voxel box's ±80 m.
+    let reaching = TokenizerConfig {
+        render: bevworld_tokenizer::config::RenderConfig {
+            far: 100.0,
+            ..tiny.render.clone()
+        },
+        ..tiny.clone()
+    };
+    let escaping = TokenizerConfig {
+        render: bevworld_tokenizer::config::RenderConfig {
+            escape_at_far: true,
+            ..reaching.render.clone()
+        },
+        ..reaching.clone()
+    };
+    let load = |model: &TokenizerConfig| {
+        load_frames(&data, &FrameInputs::new(model), 1, |_, _| {})
+            .expect("frames")
+            .remove(0)
+    };
+    let (plain, boxed) = (load(&reaching), load(&escaping));
+    let bev = &tiny.bev;
+    let in_box = |frame: &TrainingFrame, i: usize| {
+        let (o, d, r) = (
+            frame.lidar.origins[i],
+            frame.lidar.directions[i],
+            frame.lidar_ranges[i],
+        );
+        [bev.x_range, bev.y_range, bev.z_range]
+            .iter()
+            .enumerate()
+            .all(|(axis, range)| (range[0]..range[1]).contains(&f64::from(o[axis] + r * d[axis])))
+    };
+    let outside = (0..plain.lidar.len())
+        .filter(|&i| !in_box(&plain, i))
+        .count();
+    assert!(outside > 0, "no return outside the box");
+    assert_eq!(boxed.lidar.len(), plain.lidar.len() - outside);
+    assert!((0..boxed.lidar.len()).all(|i| in_box(&boxed, i)));
+    // Validation and the graph still render every ray of the sweep.
+    assert_eq!(boxed.rays.lidar.len(), plain.rays.lidar.len());
+}

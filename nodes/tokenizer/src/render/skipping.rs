@@ -311,8 +311,11 @@ impl VoxelScene<'_> {
             }
             active.retain(|&r| cursor[r] < kept[r].len() && log_t[r] >= stop);
         }
-        for (opacity, lt) in out.opacity.iter_mut().zip(&log_t) {
-            *opacity = 1.0 - lt.exp();
+        let escape_depth = model.escape_depth();
+        for ((opacity, depth), lt) in out.opacity.iter_mut().zip(&mut out.depth).zip(&log_t) {
+            let transmittance = lt.exp();
+            *opacity = 1.0 - transmittance;
+            *depth += transmittance * escape_depth;
         }
         out
     }

@@ -30,7 +30,8 @@ pub struct TrainingFrame {
     pub token: String,
     pub encoder: EncoderArrays,
     pub rays: FrameRays,
-    /// LiDAR rays whose range lies inside the rendered `[near, far]`, and those ranges.
+    /// LiDAR rays whose range lies inside the rendered `[near, far]` (and, with
+    /// `render.escape_at_far`, whose return lies inside the voxel box), and those ranges.
     pub lidar: Rays,
     pub lidar_ranges: Vec<f32>,
     /// The scene's returns (off the ego vehicle, see `EgoBody`) in the ego frame, for Chamfer.
@@ -120,6 +121,15 @@ pub fn load_frames(
     }
     let render = &inputs.config().render;
     let (near, far) = (render.near as f32, render.far as f32);
+    let bev = &inputs.config().bev;
+    // Whether ray i's return (ego frame) lies inside the voxel box.
+    let in_box = |rays: &Rays, i: usize, range: f32| {
+        let (o, d) = (rays.origins[i], rays.directions[i]);
+        [bev.x_range, bev.y_range, bev.z_range]
+            .iter()
+            .enumerate()
+            .all(|(axis, r)| (r[0]..r[1]).contains(&f64::from(o[axis] + range * d[axis])))
+    };
     let mut pillarizer = Pillarizer::new(inputs.pillar_grid(), Limits::default());
     let mut points = Vec::new();
     let mut frames = Vec::with_capacity(count);
@@ -141,6 +151,7 @@ pub fn load_frames(
         let rays = inputs.frame_rays(&frame).map_err(frame_error)?;
         let inside: Vec<usize> = (0..rays.lidar.len())
             .filter(|&i| (near..=far).contains(&rays.lidar_ranges[i]))
+            .filter(|&i| !render.escape_at_far || in_box(&rays.lidar, i, rays.lidar_ranges[i]))
             .collect();
         frames.push(TrainingFrame {
             token: frame.frame_token.clone(),
