@@ -30,9 +30,8 @@ pub struct TrainingFrame {
     pub token: String,
     pub encoder: EncoderArrays,
     pub rays: FrameRays,
-    /// The LiDAR rays training draws, and their target ranges: the returns inside the rendered
-    /// `[near, far]`; with `render.escape_at_far`, only those inside the voxel box, and also
-    /// the returns beyond `far`, whose target is `far` (the ray escapes).
+    /// LiDAR rays whose range lies inside the rendered `[near, far]` (and, with
+    /// `render.escape_at_far`, whose return lies inside the voxel box), and those ranges.
     pub lidar: Rays,
     pub lidar_ranges: Vec<f32>,
     /// The scene's returns (off the ego vehicle, see `EgoBody`) in the ego frame, for Chamfer.
@@ -150,30 +149,15 @@ pub fn load_frames(
             .encoder_arrays(&frame, &pillars)
             .map_err(frame_error)?;
         let rays = inputs.frame_rays(&frame).map_err(frame_error)?;
-        // A return beyond the far plane can only be rendered as an escape, at `far`: with
-        // `escape_at_far` its ray trains toward that, so the field learns to leave it clear
-        // instead of closing it somewhere short (the opaque far rays of the shipped weights
-        // ended 55-80 m out, median 67 m, for returns 81-96 m out).
-        let trained: Vec<usize> = (0..rays.lidar.len())
-            .filter(|&i| {
-                let range = rays.lidar_ranges[i];
-                if range.is_nan() || range < near {
-                    false
-                } else if range <= far {
-                    !render.escape_at_far || in_box(&rays.lidar, i, range)
-                } else {
-                    render.escape_at_far
-                }
-            })
+        let inside: Vec<usize> = (0..rays.lidar.len())
+            .filter(|&i| (near..=far).contains(&rays.lidar_ranges[i]))
+            .filter(|&i| !render.escape_at_far || in_box(&rays.lidar, i, rays.lidar_ranges[i]))
             .collect();
         frames.push(TrainingFrame {
             token: frame.frame_token.clone(),
             encoder,
-            lidar: rays.lidar.subset(&trained),
-            lidar_ranges: trained
-                .iter()
-                .map(|&i| rays.lidar_ranges[i].min(far))
-                .collect(),
+            lidar: rays.lidar.subset(&inside),
+            lidar_ranges: inside.iter().map(|&i| rays.lidar_ranges[i]).collect(),
             lidar_points: frame.lidar.scene_ego_points(),
             rays,
         });
