@@ -61,6 +61,9 @@ pub struct TokenizerConfig {
     pub lidar_backbone: SwinConfig,
     /// Reference points per BEV cell along the pillar's height (K = 4).
     pub fusion_heights: usize,
+    /// Image backbone stages the fusion reads, counted from the last (1: the last stage's
+    /// features only; 2: also the stage before it, at twice the resolution).
+    pub fusion_levels: usize,
     pub latent_channels: usize,
     pub decoder: VoxelLiftConfig,
     pub render: RenderConfig,
@@ -132,6 +135,16 @@ impl TokenizerConfig {
     /// Channels of the fused BEV feature (before compression).
     pub fn fused_channels(&self) -> usize {
         self.lidar_backbone.out_channels()
+    }
+
+    /// Channels of the finer image feature levels the fusion reads besides the last stage's,
+    /// finest first (`fusion_levels`).
+    pub fn fusion_fine_channels(&self) -> Vec<usize> {
+        let stages = self.image_backbone.depths.len();
+        let first = stages.saturating_sub(self.fusion_levels.max(1));
+        (first..stages.saturating_sub(1))
+            .map(|stage| self.image_backbone.embed_dim << stage)
+            .collect()
     }
 
     /// Image feature map size, [height, width].
@@ -240,6 +253,13 @@ impl TokenizerConfig {
             problems.push(format!(
                 "render.linear_until: {} must lie in (near, far] = ({}, {}]",
                 self.render.linear_until, self.render.near, self.render.far
+            ));
+        }
+        if self.fusion_levels == 0 || self.fusion_levels > self.image_backbone.depths.len() {
+            problems.push(format!(
+                "fusion_levels: {} must be between 1 and the image backbone's {} stages",
+                self.fusion_levels,
+                self.image_backbone.depths.len()
             ));
         }
         if self.cameras == 0 || self.fusion_heights == 0 || self.latent_channels == 0 {

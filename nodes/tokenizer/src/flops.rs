@@ -81,7 +81,18 @@ impl TokenizerFlops {
         let fusion = 2.0 * cameras * (fh * fw) as f64 * c_img * c // value projection
             + 2.0 * q * c * cameras * k * 3.0 // offsets (2) and attention weights (1)
             + 2.0 * cameras * q * k * c * 4.0 // bilinear sampling of 4 texels
-            + 2.0 * q * c * c; // output projection
+            + 2.0 * q * c * c // output projection
+            + config
+                .fusion_fine_channels()
+                .iter()
+                .enumerate()
+                .map(|(level, &c_l)| {
+                    // the finer levels, finest first: each twice the size of the next
+                    let finer = 1usize << (config.fusion_fine_channels().len() - level);
+                    2.0 * cameras * (fh * fw * finer * finer) as f64 * c_l as f64 * c
+                        + 2.0 * cameras * q * k * c * 4.0
+                })
+                .sum::<f64>();
         let lift = 2.0 * q * config.latent_channels as f64 * dim as f64
             + decoder.depths[0] as f64 * swin_block(dim, decoder.window, n, n)
             + 2.0 * q * (dim * 2 * dim) as f64 // patch expanding

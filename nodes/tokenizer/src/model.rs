@@ -67,6 +67,9 @@ pub struct Tokenizer {
     pillar_grid: usize,
     #[module(skip)]
     pillar_channels: usize,
+    /// Image backbone stages the fusion reads (`fusion_levels`).
+    #[module(skip)]
+    fusion_levels: usize,
     /// The encoder reads the cameras (fusion) and the sweep (pillars); an ablation model reads
     /// one of them.
     #[module(skip)]
@@ -92,6 +95,7 @@ impl TokenizerConfig {
                 self.cameras,
                 self.fusion_heights,
             )
+            .with_fine_channels(self.fusion_fine_channels())
             .init(device),
             compress: LatentCompressConfig::new(self.fused_channels(), self.latent_channels)
                 .init(device),
@@ -109,6 +113,7 @@ impl TokenizerConfig {
             }),
             pillar_grid: self.bev.pillar_grid,
             pillar_channels: self.pillar_channels,
+            fusion_levels: self.fusion_levels.max(1),
             reads_camera: self.uses(Modality::Camera),
             reads_lidar: self.uses(Modality::Lidar),
             escape_depth: if self.render.escape_at_far {
@@ -142,10 +147,14 @@ impl Tokenizer {
         }; // [1, C_p, G, G]
         let lidar = self.lidar_backbone.forward(bev); // [1, C, h, w]
         let fused = if self.reads_camera {
-            let image_features = self.image_backbone.forward(input.images); // [N_c, C_img, h_i, w_i]
+            // [N_c, C_img, h_i, w_i], and the finer stages' maps before it
+            let (image_features, fine) = self
+                .image_backbone
+                .forward_levels(input.images, self.fusion_levels - 1);
             self.fusion.forward(
                 lidar,
                 image_features,
+                fine,
                 input.reference,
                 input.reference_valid,
             )

@@ -125,3 +125,36 @@ fn modalities_are_both_by_default_and_round_trip() {
         );
     }
 }
+
+#[test]
+fn fusion_levels_must_name_stages_the_image_backbone_has() {
+    let text = std::fs::read_to_string(model("tokenizer-tiny.yaml")).expect("read");
+    let with_levels = |levels: &str| {
+        text.lines()
+            .map(|line| {
+                if line.starts_with("fusion_levels:") {
+                    format!("fusion_levels: {levels}")
+                } else {
+                    line.to_string()
+                }
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    for levels in ["1", "2"] {
+        let config = TokenizerConfig::from_yaml(&with_levels(levels), "levels.yaml")
+            .unwrap_or_else(|e| panic!("{levels}: {e}"));
+        // The tiny image backbone's two stages: 16 channels at stride 4, 32 at stride 8.
+        let fine: Vec<usize> = if levels == "2" { vec![16] } else { vec![] };
+        assert_eq!(config.fusion_fine_channels(), fine);
+    }
+    for levels in ["0", "3"] {
+        let message = TokenizerConfig::from_yaml(&with_levels(levels), "levels.yaml")
+            .expect_err(levels)
+            .to_string();
+        assert!(
+            message.contains("levels.yaml") && message.contains("fusion_levels: "),
+            "{levels}: {message}"
+        );
+    }
+}

@@ -44,6 +44,7 @@ fn a_camera_that_sees_no_point_contributes_nothing() {
     let out = values(fusion.forward(
         bev.clone(),
         images.clone(),
+        Vec::new(),
         reference.clone(),
         valid.clone(),
     ));
@@ -51,14 +52,20 @@ fn a_camera_that_sees_no_point_contributes_nothing() {
     // Replace camera 1's features with anything: the output must not move.
     let other = Tensor::<4>::random([1, 6, 5, 7], Distribution::Normal(5.0, 3.0), &device());
     let images2 = Tensor::cat(vec![images.clone().narrow(0, 0, 1), other], 0);
-    let out2 = values(fusion.forward(bev.clone(), images2, reference.clone(), valid.clone()));
+    let out2 = values(fusion.forward(
+        bev.clone(),
+        images2,
+        Vec::new(),
+        reference.clone(),
+        valid.clone(),
+    ));
     for (a, b) in out.iter().zip(&out2) {
         assert!((a - b).abs() < 1e-5, "{a} vs {b}");
     }
     // Camera 0's features do matter.
     let other = Tensor::<4>::random([1, 6, 5, 7], Distribution::Normal(5.0, 3.0), &device());
     let images3 = Tensor::cat(vec![other, images.narrow(0, 1, 1)], 0);
-    let out3 = values(fusion.forward(bev, images3, reference, valid));
+    let out3 = values(fusion.forward(bev, images3, Vec::new(), reference, valid));
     assert!(out.iter().zip(&out3).any(|(a, b)| (a - b).abs() > 1e-3));
 }
 
@@ -70,12 +77,60 @@ fn an_unseen_query_keeps_only_its_residual() {
     let out = values(fusion.forward(
         bev.clone(),
         images.clone(),
+        Vec::new(),
         reference.clone(),
         nothing.clone(),
     ));
     let (_, images2, _) = inputs(4.0);
-    let out2 = values(fusion.forward(bev.clone(), images2, reference, nothing));
+    let out2 = values(fusion.forward(bev.clone(), images2, Vec::new(), reference, nothing));
     assert_eq!(out, out2);
     assert!(out.iter().all(|v| v.is_finite()));
     assert_eq!(out.len(), 8 * H * W);
+}
+
+#[test]
+fn a_finer_level_is_read_only_where_its_camera_sees_the_point() {
+    // One finer level of 3 channels at twice the coarse map's size.
+    let fusion = DeformableFusionConfig::new(8, 6, CAMERAS, K)
+        .with_fine_channels(vec![3])
+        .init(&device());
+    let (bev, images, reference) = inputs(0.0);
+    let fine = |mean: f64| {
+        Tensor::<4>::random(
+            [CAMERAS, 3, 10, 14],
+            Distribution::Normal(mean, 1.0),
+            &device(),
+        )
+    };
+    let mut valid = vec![1.0f32; H * W * K];
+    valid.extend(vec![0.0f32; H * W * K]);
+    let valid = Tensor::<3>::from_data(TensorData::new(valid, [CAMERAS, H * W, K]), &device());
+    let level = fine(0.0);
+    let run = |level: Tensor<4>| {
+        values(fusion.forward(
+            bev.clone(),
+            images.clone(),
+            vec![level],
+            reference.clone(),
+            valid.clone(),
+        ))
+    };
+    let out = run(level.clone());
+    assert!(out.iter().all(|v| v.is_finite()));
+
+    // Camera 1 sees nothing: its fine features cannot move the output.
+    let changed = Tensor::cat(
+        vec![level.clone().narrow(0, 0, 1), fine(5.0).narrow(0, 1, 1)],
+        0,
+    );
+    for (a, b) in out.iter().zip(&run(changed)) {
+        assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+    }
+    // Camera 0 sees every point: its fine features do.
+    let changed = Tensor::cat(vec![fine(5.0).narrow(0, 0, 1), level.narrow(0, 1, 1)], 0);
+    assert!(
+        out.iter()
+            .zip(&run(changed))
+            .any(|(a, b)| (a - b).abs() > 1e-3)
+    );
 }

@@ -7,6 +7,7 @@ use bevworld_tokenizer::swin::window::{
 };
 use bevworld_tokenizer::swin::{SwinBlockConfig, SwinConfig};
 use burn::prelude::*;
+use burn::tensor::Distribution;
 
 fn device() -> Device {
     Device::flex()
@@ -163,4 +164,22 @@ fn backbone_output_follows_its_stride_and_width() {
         problems.iter().any(|p| p.contains("image_backbone.heads")),
         "{problems:?}"
     );
+}
+
+#[test]
+fn backbone_levels_end_with_the_forward_output_and_keep_the_finer_stage() {
+    let config = SwinConfig::new(3, 4, 16, vec![2, 2], vec![2, 4], 4);
+    let backbone = config.init(&device());
+    let x = Tensor::<4>::random([2, 3, 32, 64], Distribution::Normal(0.0, 1.0), &device());
+    let last = values(backbone.forward(x.clone()));
+
+    let (coarse, none) = backbone.forward_levels(x.clone(), 0);
+    assert!(none.is_empty());
+    assert_eq!(values(coarse), last);
+
+    let (coarse, fine) = backbone.forward_levels(x, 1);
+    assert_eq!(values(coarse), last);
+    assert_eq!(fine.len(), 1);
+    // The first stage, before its merging: stride 4, the embedding width.
+    assert_eq!(fine[0].dims(), [2, 16, 8, 16]);
 }

@@ -4,10 +4,13 @@
 //! every camera (`projection.rs`); around each projection the query predicts a learned offset
 //! (zero at initialisation, so sampling starts at the geometric point) and an attention weight.
 //! Image features are read bilinearly with zero padding (`bilinear::sample_bilinear`, with
-//! `grid_sample_2d`'s conventions). The weights are a softmax over the (camera, point) pairs
-//! that are valid, times their validity: a point behind a camera or outside its image gets
-//! weight exactly 0, and a query that no camera sees gets nothing from the images, only its
-//! residual.
+//! `grid_sample_2d`'s conventions). With several feature levels (the backbone's stages, as in
+//! multi-scale deformable attention), every level is read at the same point through its own
+//! value projection and the values are summed: the finer stage keeps the colours and edges
+//! that the last one has averaged over 8 x 8 pixels. The weights are a softmax over the
+//! (camera, point) pairs that are valid, times their validity: a point behind a camera or
+//! outside its image gets weight exactly 0, and a query that no camera sees gets nothing from
+//! the images, only its residual.
 
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
@@ -20,8 +23,11 @@ use crate::swin::window::MASKED;
 pub struct DeformableFusionConfig {
     /// Channels of the BEV queries and of the output.
     pub dim: usize,
-    /// Channels of the image features.
+    /// Channels of the image features: the coarsest level's.
     pub image_channels: usize,
+    /// Channels of each finer level the fusion also reads, finest first (empty: one level).
+    #[config(default = "Vec::new()")]
+    pub fine_channels: Vec<usize>,
     pub cameras: usize,
     /// Reference points per query along the pillar's height (K = 4 in the paper).
     pub heights: usize,
@@ -30,6 +36,8 @@ pub struct DeformableFusionConfig {
 #[derive(Module, Debug)]
 pub struct DeformableFusion {
     value: Linear,
+    /// Value projections of the finer levels, in `fine_channels` order.
+    fine_values: Vec<Linear>,
     offsets: Linear,
     weights: Linear,
     output: Linear,
@@ -43,6 +51,11 @@ impl DeformableFusionConfig {
     pub fn init(&self, device: &Device) -> DeformableFusion {
         DeformableFusion {
             value: LinearConfig::new(self.image_channels, self.dim).init(device),
+            fine_values: self
+                .fine_channels
+                .iter()
+                .map(|&channels| LinearConfig::new(channels, self.dim).init(device))
+                .collect(),
             offsets: LinearConfig::new(self.dim, self.cameras * self.heights * 2)
                 .with_initializer(Initializer::Zeros)
                 .init(device),
@@ -57,13 +70,14 @@ impl DeformableFusionConfig {
 impl DeformableFusion {
     /// `reference`: where each query's points land in each camera, in `grid_sample_2d`'s
     /// [-1, 1] coordinates; `valid`: 1 where that projection is in front of the camera and
-    /// inside its image.
-    // bev [1, C, H, W], images [N_c, C_img, h, w], reference [N_c, Q, K, 2], valid [N_c, Q, K]
-    // -> [1, C, H, W], with Q = H * W
+    /// inside its image. `fine` are the finer feature levels, one per `fine_channels` entry.
+    // bev [1, C, H, W], images [N_c, C_img, h, w], fine [N_c, C_l, h_l, w_l] each,
+    // reference [N_c, Q, K, 2], valid [N_c, Q, K] -> [1, C, H, W], with Q = H * W
     pub fn forward(
         &self,
         bev: Tensor<4>,
         images: Tensor<4>,
+        fine: Vec<Tensor<4>>,
         reference: Tensor<4>,
         valid: Tensor<3>,
     ) -> Tensor<4> {
@@ -94,8 +108,13 @@ impl DeformableFusion {
             .reshape([queries, cameras, k])
             .swap_dims(0, 1); // [N_c, Q, K]
 
-        let sampled = sample_bilinear(value, grid.reshape([cameras, queries * k, 2]))
-            .reshape([cameras, queries, k, dim]); // [N_c, Q, K, C]
+        let grid = grid.reshape([cameras, queries * k, 2]);
+        let mut sampled = sample_bilinear(value, grid.clone()); // [N_c, Q * K, C]
+        for (projection, level) in self.fine_values.iter().zip(fine) {
+            let value = projection.forward(level.permute([0, 2, 3, 1])); // [N_c, h_l, w_l, C]
+            sampled = sampled + sample_bilinear(value, grid.clone());
+        }
+        let sampled = sampled.reshape([cameras, queries, k, dim]); // [N_c, Q, K, C]
         let fused = (sampled * attention.reshape([cameras, queries, k, 1]))
             .sum_dim(2)
             .sum_dim(0)

@@ -131,4 +131,25 @@ impl SwinBackbone {
         }
         h.permute([0, 3, 1, 2])
     }
+
+    /// `forward`'s output, and the outputs of the `finer` stages before the last, finest
+    /// first, channels-first: stage `s` gives `[B, C·2^s, H / (patch·2^s), W / (patch·2^s)]`,
+    /// taken after its blocks and before its patch merging.
+    pub fn forward_levels(&self, x: Tensor<4>, finer: usize) -> (Tensor<4>, Vec<Tensor<4>>) {
+        let mut h = self.embed.forward(x); // [B, H/p, W/p, C]
+        let first_kept = self.stages.len().saturating_sub(finer + 1);
+        let mut levels = Vec::with_capacity(finer);
+        for (index, stage) in self.stages.iter().enumerate() {
+            for block in &stage.blocks {
+                h = block.forward(h);
+            }
+            if let Some(merge) = &stage.merge {
+                if index >= first_kept {
+                    levels.push(h.clone().permute([0, 3, 1, 2]));
+                }
+                h = merge.forward(h);
+            }
+        }
+        (h.permute([0, 3, 1, 2]), levels)
+    }
 }
