@@ -746,3 +746,92 @@ fn with_escape_at_far_training_draws_only_returns_inside_the_voxel_box() {
     // Validation and the graph still render every ray of the sweep.
     assert_eq!(boxed.rays.lidar.len(), plain.rays.lidar.len());
 }
+
+#[test]
+fn truncated_lidar_rays_are_grouped_by_the_samples_their_return_needs() {
+    use bevworld_tokenizer::train::truncation::{
+        TRUNCATED_GROUPS, TruncatedGroup, truncated_groups,
+    };
+    let depths = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+    // Ray 10 returns at 1.5 m (1 sample up to it, 3 with 2 past it), ray 11 at 5.5 m (5, all
+    // 6 at most), ray 12 at 0.5 m (none up to it, 2), ray 13 exactly on the 3 m sample (3, 5).
+    let mut ranges = vec![0.0f32; 14];
+    ranges[10..14].copy_from_slice(&[1.5, 5.5, 0.5, 3.0]);
+    let group = |rays: Vec<usize>, samples| TruncatedGroup { rays, samples };
+    assert_eq!(TRUNCATED_GROUPS, 4);
+    assert_eq!(
+        truncated_groups(&[10, 11, 12, 13], &ranges, &depths, 2),
+        vec![
+            group(vec![12], 2),
+            group(vec![10], 3),
+            group(vec![13], 5),
+            group(vec![11], 6)
+        ]
+    );
+    // Eight rays make groups of two, each rendered to its longer ray's count; equal counts
+    // keep the draw's order (rays 10, 12, 14 and 16 need 1 sample: at least one is rendered).
+    ranges.extend([1.2, 5.9, 0.1, 3.5]);
+    assert_eq!(
+        truncated_groups(&[10, 11, 12, 13, 14, 15, 16, 17], &ranges, &depths, 0),
+        vec![
+            group(vec![10, 12], 1),
+            group(vec![14, 16], 1),
+            group(vec![13, 17], 3),
+            group(vec![11, 15], 5)
+        ]
+    );
+}
+
+#[test]
+fn rays_truncated_past_every_sample_train_as_whole_rays() {
+    let (mut config, model) = configs();
+    config.rays.lidar_rays = 256;
+    config.rays.lidar_samples_past_return = None;
+    let whole = trainer(config.clone(), model.clone(), frames().clone())
+        .train_step()
+        .expect("step");
+    config.rays.lidar_samples_past_return = Some(model.render.samples);
+    let grouped = trainer(config.clone(), model.clone(), frames().clone())
+        .train_step()
+        .expect("step");
+    // The same rays and samples, summed in another order.
+    let close = |a: Option<f64>, b: Option<f64>| {
+        let (a, b) = (a.expect("term"), b.expect("term"));
+        (a - b).abs() <= 1e-5 * a.abs().max(1.0)
+    };
+    assert!(
+        close(whole.loss_lidar, grouped.loss_lidar),
+        "{whole:?} vs {grouped:?}"
+    );
+    assert!(
+        close(whole.loss_distortion, grouped.loss_distortion),
+        "{whole:?} vs {grouped:?}"
+    );
+    assert_eq!(whole.loss_rgb, grouped.loss_rgb);
+
+    // Two samples past the return: a near return renders a fraction of its ray, so the
+    // loss changes, but stays finite and positive.
+    config.rays.lidar_samples_past_return = Some(2);
+    let short = trainer(config.clone(), model.clone(), frames().clone())
+        .train_step()
+        .expect("step");
+    let lidar = short.loss_lidar.expect("LiDAR term");
+    assert!(lidar.is_finite() && lidar > 0.0 && lidar != whole.loss_lidar.expect("term"));
+
+    // A ray cut short cannot escape at the far plane.
+    let escaping = TokenizerConfig {
+        render: bevworld_tokenizer::config::RenderConfig {
+            escape_at_far: true,
+            ..model.render.clone()
+        },
+        ..model
+    };
+    let refused = Trainer::new(config, escaping, &Device::flex(), frames().clone(), vec![])
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        refused.contains("rays.lidar_samples_past_return") && refused.contains("escape_at_far"),
+        "{refused}"
+    );
+}
