@@ -33,13 +33,6 @@ pub struct RayConfig {
     /// How the LiDAR rays are drawn.
     #[serde(default)]
     pub lidar_draw: LidarDraw,
-    /// Render each drawn LiDAR ray only up to this many samples past its return (absent: every
-    /// sample). The samples behind a surface carry no weight once the ray is opaque there,
-    /// and the near returns, half of a sweep, need a third of a ray's samples; a ray still
-    /// transparent at its last sample ends short, so the depth loss pulls its weight in front
-    /// of that. Validation and inference render every sample.
-    #[serde(default)]
-    pub lidar_samples_past_return: Option<usize>,
 }
 
 /// Which of a sweep's returns a step renders.

@@ -17,28 +17,19 @@ use burn::prelude::*;
 /// so the cost is linear in the samples.
 // [R, S] -> [1]
 pub fn distortion(weights: Tensor<2>) -> Tensor<1> {
-    let [_, samples] = weights.dims();
-    distortion_per_ray(weights, samples).mean()
-}
-
-/// Each ray's distortion when its weights are the first of `samples` samples (the rest carry
-/// no weight): a ray rendered only to a few samples past its return is measured on the same
-/// normalised index as a whole ray.
-// [R, S'] with S' <= samples -> [R]
-pub fn distortion_per_ray(weights: Tensor<2>, samples: usize) -> Tensor<1> {
-    let [rays, rendered] = weights.dims();
+    let [rays, samples] = weights.dims();
     let device = weights.device();
-    let width = 1.0 / samples.max(rendered) as f32;
-    let midpoints: Vec<f32> = (0..rendered).map(|i| (i as f32 + 0.5) * width).collect();
-    let s = Tensor::<2>::from_data(TensorData::new(midpoints, [1, rendered]), &device); // [1, S']
-    let ws = weights.clone() * s.clone(); // [R, S']
-    let weight_before = weights.clone().cumsum(1) - weights.clone(); // [R, S']
-    let ws_before = ws.clone().cumsum(1) - ws.clone(); // [R, S']
+    let width = 1.0 / samples as f32;
+    let midpoints: Vec<f32> = (0..samples).map(|i| (i as f32 + 0.5) * width).collect();
+    let s = Tensor::<2>::from_data(TensorData::new(midpoints, [1, samples]), &device); // [1, S]
+    let ws = weights.clone() * s.clone(); // [R, S]
+    let weight_before = weights.clone().cumsum(1) - weights.clone(); // [R, S]
+    let ws_before = ws.clone().cumsum(1) - ws.clone(); // [R, S]
     let between = (ws * weight_before - weights.clone() * ws_before)
         .sum_dim(1)
         .mul_scalar(2.0); // [R, 1]
     let within = weights.powi_scalar(2).sum_dim(1).mul_scalar(width / 3.0); // [R, 1]
-    (between + within).reshape([rays])
+    (between + within).reshape([rays]).mean()
 }
 
 #[cfg(test)]

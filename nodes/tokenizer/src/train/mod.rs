@@ -16,7 +16,6 @@ pub mod replica;
 pub mod rng;
 pub mod schedule;
 pub mod trainer;
-pub mod truncation;
 
 pub use config::{LidarDraw, TrainConfig};
 pub use trainer::{StepReport, TrainError, Trainer, ValidationReport};

@@ -25,13 +25,12 @@ use crate::train::data::TrainingFrame;
 use crate::train::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
 };
-use crate::train::distortion::{distortion, distortion_per_ray};
+use crate::train::distortion::distortion;
 use crate::train::losses::l1;
 use crate::train::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG16};
 use crate::train::replica::replica;
 use crate::train::rng::SplitMix64;
 use crate::train::schedule::learning_rate;
-use crate::train::truncation::truncated_groups;
 use crate::weights::{WeightsError, load_module, load_weights, save_module, save_weights};
 
 /// What one frame of a step renders, drawn from the run's RNG before any work starts, so the
@@ -102,10 +101,6 @@ pub enum TrainError {
     Perceptual(#[from] PerceptualError),
     #[error("no training frames")]
     NoFrames,
-    #[error(
-        "rays.lidar_samples_past_return cannot be used with the model's render.escape_at_far: a ray cut short would escape at `far`"
-    )]
-    TruncationWithEscape,
     #[error("a training worker thread panicked; the step was not applied")]
     WorkerPanicked,
 }
@@ -237,9 +232,6 @@ impl Trainer {
     ) -> Result<Self, TrainError> {
         if train.is_empty() {
             return Err(TrainError::NoFrames);
-        }
-        if config.rays.lidar_samples_past_return.is_some() && model_config.render.escape_at_far {
-            return Err(TrainError::TruncationWithEscape);
         }
         let device = device.clone().autodiff();
         device.seed(config.seed);
@@ -728,46 +720,15 @@ fn lidar_loss(
             distortion: None,
         };
     }
-    let with_distortion = inputs.config.loss.lidar_distortion > 0.0;
-    let Some(past) = inputs.config.rays.lidar_samples_past_return else {
-        let lidar_rays = frame.lidar.subset(chosen);
-        let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
-        let positions = sample_positions(&lidar_rays, inputs.depths, inputs.placement);
-        let rendered = model.render_rays(voxels, &positions, lidar_rays.len(), depth_row);
-        let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), device);
-        return LidarLosses {
-            l1: l1(rendered.depth, target),
-            distortion: with_distortion.then(|| distortion(rendered.weights)),
-        };
-    };
-    // Each group of rays is rendered to the samples its farthest return needs; the sums over
-    // groups, divided by the ray count, are the means over every drawn ray.
-    let (mut abs_sum, mut distortion_sum) = (Tensor::<1>::zeros([1], device), None);
-    for group in truncated_groups(chosen, &frame.lidar_ranges, inputs.depths, past) {
-        let lidar_rays = frame.lidar.subset(&group.rays);
-        let ranges: Vec<f32> = group.rays.iter().map(|&i| frame.lidar_ranges[i]).collect();
-        let depths = &inputs.depths[..group.samples];
-        let positions = sample_positions(&lidar_rays, depths, inputs.placement);
-        let rendered = model.render_rays(
-            voxels,
-            &positions,
-            lidar_rays.len(),
-            depth_row.clone().narrow(1, 0, group.samples),
-        );
-        let target = Tensor::<1>::from_data(TensorData::new(ranges, [group.rays.len()]), device);
-        abs_sum = abs_sum + (rendered.depth - target).abs().sum();
-        if with_distortion {
-            let part = distortion_per_ray(rendered.weights, inputs.depths.len()).sum();
-            distortion_sum = Some(match distortion_sum {
-                Some(sum) => sum + part,
-                None => part,
-            });
-        }
-    }
-    let count = chosen.len() as f64;
+    let lidar_rays = frame.lidar.subset(chosen);
+    let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
+    let positions = sample_positions(&lidar_rays, inputs.depths, inputs.placement);
+    let rendered = model.render_rays(voxels, &positions, lidar_rays.len(), depth_row);
+    let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), device);
     LidarLosses {
-        l1: abs_sum.div_scalar(count),
-        distortion: distortion_sum.map(|sum| sum.div_scalar(count)),
+        l1: l1(rendered.depth, target),
+        distortion: (inputs.config.loss.lidar_distortion > 0.0)
+            .then(|| distortion(rendered.weights)),
     }
 }
 
