@@ -372,3 +372,61 @@ fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
         }
     }
 }
+
+#[test]
+fn the_lidar_l1_weight_is_checked_recorded_and_weighs_the_loss() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth(&data, "5");
+    let args = |run: &Path, weight: &str| {
+        let flag = format!("--lidar-l1={weight}");
+        train_args(run, &data, &data, "2", &[flag.as_str()])
+    };
+
+    // A negative or non-finite weight is refused before anything is written.
+    for weight in ["-0.5", "NaN"] {
+        let run = dir.path().join("run-bad");
+        let bad = bevworld_owned(&args(&run, weight));
+        assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
+        assert!(
+            text(&bad).contains(&format!("--lidar-l1: loss.lidar_l1: {weight}")),
+            "{}",
+            text(&bad)
+        );
+        assert!(!run.exists(), "{}", text(&bad));
+    }
+
+    // The run records the weight, and every training row's loss is the RGB term plus the
+    // LiDAR term at that weight plus the distortion term at the committed config's 0.1 (the
+    // perceptual term has no weights here and the GAN has not started).
+    let run = dir.path().join("run");
+    let good = bevworld_owned(&args(&run, "0.5"));
+    assert!(good.status.success(), "{}", text(&good));
+    let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
+    let recorded_weight = recorded
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("lidar_l1:"))
+        .and_then(|v| v.trim().parse::<f64>().ok());
+    assert_eq!(recorded_weight, Some(0.5), "{recorded}");
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
+    let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).expect(name);
+    let (loss, rgb, lidar, distortion) = (
+        column("loss"),
+        column("loss_rgb"),
+        column("loss_lidar"),
+        column("loss_distortion"),
+    );
+    let mut rows = 0;
+    for line in csv.lines().skip(1).filter(|l| l.contains(",train,")) {
+        let fields: Vec<f64> = line
+            .split(',')
+            .map(|f| f.parse::<f64>().unwrap_or(f64::NAN))
+            .collect();
+        let expected = fields[rgb] + 0.5 * fields[lidar] + 0.1 * fields[distortion];
+        assert!(fields[lidar] > 0.1, "{line}");
+        assert!((fields[loss] - expected).abs() < 1e-5, "{line}: {expected}");
+        rows += 1;
+    }
+    assert_eq!(rows, 2, "{csv}");
+}

@@ -57,6 +57,11 @@ pub struct TrainTokenizerArgs {
     /// return alike, or with probability proportional to its range.
     #[arg(long, value_name = "uniform|by_range")]
     pub lidar_draw: Option<String>,
+    /// Weight of the L1 loss on the LiDAR rays' rendered depth, in metres, overriding the
+    /// config's `loss.lidar_l1`. The synthetic config's 0.025 suits its near returns; a real
+    /// sweep's Chamfer rests on its sparse far returns, which want more.
+    #[arg(long, value_name = "W")]
+    pub lidar_l1: Option<f64>,
     /// Weight of the distortion loss on the LiDAR rays' render weights (Mip-NeRF 360),
     /// overriding the config's `loss.lidar_distortion` (0: off). It pulls each ray's weight
     /// onto one surface, so that a ray at an object's edge does not put its point between the
@@ -134,6 +139,13 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         config.rays.lidar_draw = text
             .parse::<LidarDraw>()
             .map_err(|e| anyhow::anyhow!("--lidar-draw: {e}"))?;
+    }
+    if let Some(weight) = args.lidar_l1 {
+        config.loss.lidar_l1 = weight;
+        let problems = config.problems();
+        if let Some(problem) = problems.iter().find(|p| p.contains("loss.lidar_l1")) {
+            bail!("--lidar-l1: {problem}");
+        }
     }
     if let Some(weight) = args.lidar_distortion {
         config.loss.lidar_distortion = weight;
