@@ -324,28 +324,34 @@ fn a_run_on_another_ray_grid_records_it_and_resumes_on_it() {
     assert_eq!(stride_of_run(), 2);
 }
 
-#[test]
-fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
+/// A loss weight's flag (`--lidar-distortion`, `--lidar-termination`): a negative weight is
+/// refused naming the flag and the config field before anything is written; a run records the
+/// weight in its `train.yaml`; the term's column holds a value in `range` in every training row
+/// when the weight is above 0, and is empty in validation rows and when it is 0.
+fn a_loss_weight_flag_is_checked_recorded_and_logged(
+    flag: &str,
+    field: &str,
+    column: &str,
+    range: std::ops::Range<f64>,
+) {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
     synth(&data, "4");
     let args = |run: &Path, weight: &str| {
-        let flag = format!("--lidar-distortion={weight}");
+        let flag = format!("--{flag}={weight}");
         train_args(run, &data, &data, "2", &[flag.as_str()])
     };
 
-    // A negative weight is refused before anything is written.
     let run = dir.path().join("run");
     let bad = bevworld_owned(&args(&run, "-1"));
     assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
     assert!(
-        text(&bad).contains("--lidar-distortion: loss.lidar_distortion: -1"),
+        text(&bad).contains(&format!("--{flag}: loss.{field}: -1")),
         "{}",
         text(&bad)
     );
     assert!(!run.exists(), "{}", text(&bad));
 
-    // The committed config weighs the term 0.1; the flag overrides it either way.
     for (weight, on) in [("0.25", true), ("0", false)] {
         let run = dir.path().join(format!("run-{weight}"));
         let good = bevworld_owned(&args(&run, weight));
@@ -353,24 +359,45 @@ fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
         let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
         let recorded_weight = recorded
             .lines()
-            .find_map(|l| l.trim().strip_prefix("lidar_distortion:"))
+            .find_map(|l| l.trim().strip_prefix(&format!("{field}:")))
             .and_then(|v| v.trim().parse::<f64>().ok());
         assert_eq!(recorded_weight, weight.parse().ok(), "{recorded}");
-        // The term has the log's last column: in every training row when on, in no
-        // validation row, and nowhere when off.
         let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
         let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
-        assert_eq!(header.last(), Some(&"loss_distortion"), "{csv}");
+        let position = header.iter().position(|h| *h == column).expect(column);
         for line in csv.lines().skip(1) {
             let fields: Vec<&str> = line.split(',').collect();
             assert_eq!(fields.len(), header.len(), "{line}");
-            let term = fields[header.len() - 1].parse::<f64>().ok();
+            let term = fields[position].parse::<f64>().ok();
             match (fields[1], on) {
-                ("train", true) => assert!(term.is_some_and(|t| t > 0.0 && t < 1.0), "{line}"),
+                ("train", true) => assert!(term.is_some_and(|t| range.contains(&t)), "{line}"),
                 _ => assert_eq!(term, None, "{line}"),
             }
         }
     }
+}
+
+#[test]
+fn the_lidar_distortion_weight_is_checked_recorded_and_logged() {
+    // The committed config weighs the term 0.1; the flag overrides it either way. A ray's
+    // distortion lies in [0, 1).
+    a_loss_weight_flag_is_checked_recorded_and_logged(
+        "lidar-distortion",
+        "lidar_distortion",
+        "loss_distortion",
+        1e-9..1.0,
+    );
+}
+
+#[test]
+fn the_lidar_termination_weight_is_checked_recorded_and_logged() {
+    // Off in the committed config. A ray's negative log-likelihood lies in [0, −ln 1e-6].
+    a_loss_weight_flag_is_checked_recorded_and_logged(
+        "lidar-termination",
+        "lidar_termination",
+        "loss_termination",
+        1e-9..13.82,
+    );
 }
 
 #[test]

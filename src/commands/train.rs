@@ -68,6 +68,12 @@ pub struct TrainTokenizerArgs {
     /// object and what lies behind it.
     #[arg(long, value_name = "W")]
     pub lidar_distortion: Option<f64>,
+    /// Weight of the termination loss on the LiDAR rays' render weights, overriding the
+    /// config's `loss.lidar_termination` (0: off): the negative log-likelihood of each return
+    /// under its ray's termination distribution, which asks for free space up to the return and
+    /// a stop there, not only for the right mean depth.
+    #[arg(long, value_name = "W")]
+    pub lidar_termination: Option<f64>,
     /// Cast the camera rays on the 1/N grid of each image, overriding the model config's
     /// `render.camera_stride` (a power of two dividing the image size; the RGB upsampler gets
     /// one doubling per factor of two). A resumed run keeps the stride it was started with.
@@ -152,6 +158,13 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         let problems = config.problems();
         if let Some(problem) = problems.iter().find(|p| p.contains("lidar_distortion")) {
             bail!("--lidar-distortion: {problem}");
+        }
+    }
+    if let Some(weight) = args.lidar_termination {
+        config.loss.lidar_termination = weight;
+        let problems = config.problems();
+        if let Some(problem) = problems.iter().find(|p| p.contains("lidar_termination")) {
+            bail!("--lidar-termination: {problem}");
         }
     }
     if let Some(vgg) = &args.vgg {
@@ -269,6 +282,7 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 loss_rgb: report.loss_rgb,
                 loss_lidar: report.loss_lidar,
                 loss_distortion: report.loss_distortion,
+                loss_termination: report.loss_termination,
                 loss_perceptual: report.loss_perceptual,
                 loss_gan: report.loss_gan,
                 loss_discriminator: report.loss_discriminator,

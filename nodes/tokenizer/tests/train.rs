@@ -265,6 +265,7 @@ fn bad_training_configs_name_every_field() {
     config.data.val.seed = config.data.train.seed + 3;
     config.frames_per_step = 0;
     config.loss.lidar_distortion = f64::NAN;
+    config.loss.lidar_termination = -0.5;
     let problems = config.problems().join("\n");
     for field in [
         "optimizer.lr",
@@ -273,6 +274,7 @@ fn bad_training_configs_name_every_field() {
         "data.val.seed",
         "frames_per_step",
         "loss.lidar_distortion",
+        "loss.lidar_termination",
     ] {
         assert!(
             problems.contains(field),
@@ -526,6 +528,40 @@ fn the_distortion_term_joins_the_loss_only_when_weighted() {
         (without.loss_rgb, without.loss_lidar)
     );
     let expected = without.loss + 0.1 * term;
+    assert!(
+        (with.loss - expected).abs() < 1e-5 * (1.0 + expected),
+        "{} vs {expected}",
+        with.loss
+    );
+}
+
+#[test]
+fn the_termination_term_joins_the_loss_only_when_weighted() {
+    let (mut config, model) = configs();
+    config.rays.lidar_rays = 256;
+    config.loss.lidar_termination = 0.0;
+    let mut off = trainer(config.clone(), model.clone(), frames().clone());
+    let without = off.train_step().expect("step");
+    assert_eq!(without.loss_termination, None);
+
+    config.loss.lidar_termination = 0.05;
+    let mut on = trainer(config, model, frames().clone());
+    let with = on.train_step().expect("step");
+    let term = with.loss_termination.expect("termination term");
+    // A ray's negative log-likelihood lies in [0, −ln 1e-6]; an untrained field stops its
+    // rays near the car, far from most returns, so it is well above ln 2.
+    assert!(term > 1.0 && term < 13.82, "{term}");
+    // The same seed draws the same rays: the other terms are unchanged, and the total grows
+    // by the weighted term alone.
+    assert_eq!(
+        (with.loss_rgb, with.loss_lidar, with.loss_distortion),
+        (
+            without.loss_rgb,
+            without.loss_lidar,
+            without.loss_distortion
+        )
+    );
+    let expected = without.loss + 0.05 * term;
     assert!(
         (with.loss - expected).abs() < 1e-5 * (1.0 + expected),
         "{} vs {expected}",

@@ -73,6 +73,11 @@ pub struct LossWeights {
     /// default) leaves it out.
     #[serde(default)]
     pub lidar_distortion: f64,
+    /// The termination loss on the LiDAR rays' render weights: the negative log-likelihood of
+    /// each return under its ray's termination distribution (free space up to the return, a
+    /// stop there). 0 (the default) leaves it out.
+    #[serde(default)]
+    pub lidar_termination: f64,
     /// The perceptual (VGG16) term; needs `perceptual_weights`, else it is off with a warning.
     pub perceptual: f64,
     /// The generator's adversarial (hinge) term on the rendered cameras.
@@ -219,6 +224,7 @@ impl TrainConfig {
             ("loss.rgb_l1", self.loss.rgb_l1),
             ("loss.lidar_l1", self.loss.lidar_l1),
             ("loss.lidar_distortion", self.loss.lidar_distortion),
+            ("loss.lidar_termination", self.loss.lidar_termination),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 problems.push(format!("{name}: {value} (accepted: a finite number >= 0)"));

@@ -6,7 +6,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-pub const HEADER: &str = "step,phase,lr,loss,loss_rgb,loss_lidar,loss_perceptual,loss_gan,loss_discriminator,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s,loss_distortion";
+pub const HEADER: &str = "step,phase,lr,loss,loss_rgb,loss_lidar,loss_perceptual,loss_gan,loss_discriminator,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s,loss_distortion,loss_termination";
 
 pub struct MetricsLog {
     path: PathBuf,
@@ -30,6 +30,7 @@ pub struct Row {
     pub chamfer_m2: Option<f64>,
     pub elapsed_s: f64,
     pub loss_distortion: Option<f64>,
+    pub loss_termination: Option<f64>,
 }
 
 impl MetricsLog {
@@ -59,7 +60,7 @@ impl MetricsLog {
     pub fn append(&mut self, row: &Row) -> std::io::Result<()> {
         let f = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         let line = format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},{},{}\n",
             row.step,
             row.phase,
             f(row.lr),
@@ -74,7 +75,8 @@ impl MetricsLog {
             f(row.ssim),
             f(row.chamfer_m2),
             row.elapsed_s,
-            f(row.loss_distortion)
+            f(row.loss_distortion),
+            f(row.loss_termination)
         );
         let mut file = std::fs::OpenOptions::new().append(true).open(&self.path)?;
         file.write_all(line.as_bytes())

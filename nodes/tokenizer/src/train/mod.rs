@@ -15,6 +15,7 @@ pub mod plot;
 pub mod replica;
 pub mod rng;
 pub mod schedule;
+pub mod termination;
 pub mod trainer;
 
 pub use config::{LidarDraw, TrainConfig};

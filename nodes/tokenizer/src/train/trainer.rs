@@ -31,6 +31,7 @@ use crate::train::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG1
 use crate::train::replica::replica;
 use crate::train::rng::SplitMix64;
 use crate::train::schedule::learning_rate;
+use crate::train::termination::{termination_nll, termination_targets};
 use crate::weights::{WeightsError, load_module, load_weights, save_module, save_weights};
 
 /// What one frame of a step renders, drawn from the run's RNG before any work starts, so the
@@ -52,6 +53,7 @@ struct FrameOutcome {
     rgb: Option<f64>,
     lidar: Option<f64>,
     distortion: Option<f64>,
+    termination: Option<f64>,
     perceptual: Option<f64>,
     gan: Option<f64>,
     /// The rendered cameras (detached) and their inputs, for the discriminator's step.
@@ -117,6 +119,8 @@ pub struct StepReport {
     pub loss_lidar: Option<f64>,
     /// The LiDAR rays' distortion term, when `loss.lidar_distortion` is above 0.
     pub loss_distortion: Option<f64>,
+    /// The LiDAR rays' termination term, when `loss.lidar_termination` is above 0.
+    pub loss_termination: Option<f64>,
     /// The perceptual term, when VGG16 weights were given.
     pub loss_perceptual: Option<f64>,
     /// The generator's adversarial term and the discriminator's loss, once the GAN started.
@@ -389,6 +393,7 @@ impl Trainer {
         };
         let (loss_rgb, loss_lidar) = (mean(|o| o.rgb), mean(|o| o.lidar));
         let loss_distortion = mean(|o| o.distortion);
+        let loss_termination = mean(|o| o.termination);
         let (loss_perceptual, loss_gan) = (mean(|o| o.perceptual), mean(|o| o.gan));
         let loss = outcomes.iter().map(|o| o.loss).sum::<f64>() / count;
         let mut accumulator = GradientsAccumulator::<Tokenizer>::new();
@@ -434,6 +439,7 @@ impl Trainer {
             loss_rgb,
             loss_lidar,
             loss_distortion,
+            loss_termination,
             loss_perceptual,
             loss_gan,
             loss_discriminator,
@@ -587,7 +593,8 @@ fn frame_outcome(
         device,
     );
     let mut loss = Tensor::<1>::zeros([1], device);
-    let (mut rgb_value, mut lidar_value, mut distortion_value) = (None, None, None);
+    let (mut rgb_value, mut lidar_value) = (None, None);
+    let (mut distortion_value, mut termination_value) = (None, None);
     if inputs.model_config.uses(Modality::Lidar) {
         let term = lidar_loss(
             inputs,
@@ -602,6 +609,10 @@ fn frame_outcome(
         if let Some(distortion) = term.distortion {
             distortion_value = Some(scalar(distortion.clone().detach()));
             loss = loss + distortion.mul_scalar(weights.lidar_distortion);
+        }
+        if let Some(termination) = term.termination {
+            termination_value = Some(scalar(termination.clone().detach()));
+            loss = loss + termination.mul_scalar(weights.lidar_termination);
         }
     }
     let (mut perceptual_value, mut gan_value, mut images) = (None, None, None);
@@ -629,6 +640,8 @@ fn frame_outcome(
             "LiDAR loss"
         } else if !distortion_value.is_none_or(f64::is_finite) {
             "LiDAR distortion loss"
+        } else if !termination_value.is_none_or(f64::is_finite) {
+            "LiDAR termination loss"
         } else {
             "perceptual or GAN loss"
         };
@@ -645,6 +658,7 @@ fn frame_outcome(
         rgb: rgb_value,
         lidar: lidar_value,
         distortion: distortion_value,
+        termination: termination_value,
         perceptual: perceptual_value,
         gan: gan_value,
         images,
@@ -703,6 +717,8 @@ struct LidarLosses {
     l1: Tensor<1>,
     /// Distortion of the rays' render weights, when its loss weight is above 0.
     distortion: Option<Tensor<1>>,
+    /// Termination likelihood of the rays' returns, when its loss weight is above 0.
+    termination: Option<Tensor<1>>,
 }
 
 fn lidar_loss(
@@ -718,17 +734,27 @@ fn lidar_loss(
         return LidarLosses {
             l1: Tensor::<1>::zeros([1], device),
             distortion: None,
+            termination: None,
         };
     }
     let lidar_rays = frame.lidar.subset(chosen);
     let ranges: Vec<f32> = chosen.iter().map(|&i| frame.lidar_ranges[i]).collect();
     let positions = sample_positions(&lidar_rays, inputs.depths, inputs.placement);
     let rendered = model.render_rays(voxels, &positions, lidar_rays.len(), depth_row);
+    let termination = (inputs.config.loss.lidar_termination > 0.0).then(|| {
+        let targets = termination_targets(inputs.depths, &ranges);
+        let targets = Tensor::<2>::from_data(
+            TensorData::new(targets, [chosen.len(), inputs.depths.len()]),
+            device,
+        );
+        termination_nll(rendered.weights.clone(), targets)
+    });
     let target = Tensor::<1>::from_data(TensorData::new(ranges, [chosen.len()]), device);
     LidarLosses {
         l1: l1(rendered.depth, target),
         distortion: (inputs.config.loss.lidar_distortion > 0.0)
             .then(|| distortion(rendered.weights)),
+        termination,
     }
 }
 
