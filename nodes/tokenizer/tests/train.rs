@@ -11,7 +11,7 @@ use bevworld_tokenizer::train::checkpoint;
 use bevworld_tokenizer::train::data::{TrainingFrame, load_frames};
 use bevworld_tokenizer::train::rng::SplitMix64;
 use bevworld_tokenizer::train::schedule::learning_rate;
-use bevworld_tokenizer::train::{TrainConfig, TrainError, Trainer, ValidationReport};
+use bevworld_tokenizer::train::{StepReport, TrainConfig, TrainError, Trainer, ValidationReport};
 use bevworld_tokenizer::{EncoderArrays, FrameInputs, Modality, TokenizerConfig};
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
@@ -501,33 +501,28 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
     );
 }
 
-#[test]
-fn the_distortion_term_joins_the_loss_only_when_weighted() {
+/// One step with a LiDAR loss term's weight at 0 and one at `weight`, from the same seed, so
+/// both draw the same rays (256 a frame).
+fn steps_without_and_with(
+    set_weight: impl Fn(&mut TrainConfig, f64),
+    weight: f64,
+) -> (StepReport, StepReport) {
     let (mut config, model) = configs();
     config.rays.lidar_rays = 256;
-    assert_eq!(
-        config.loss.lidar_distortion, 0.1,
-        "on in the shipped config"
-    );
-    config.loss.lidar_distortion = 0.0;
-    let mut off = trainer(config.clone(), model.clone(), frames().clone());
-    let without = off.train_step().expect("step");
-    assert_eq!(without.loss_distortion, None);
+    set_weight(&mut config, 0.0);
+    let without = trainer(config.clone(), model.clone(), frames().clone())
+        .train_step()
+        .expect("step");
+    set_weight(&mut config, weight);
+    let with = trainer(config, model, frames().clone())
+        .train_step()
+        .expect("step");
+    (without, with)
+}
 
-    config.loss.lidar_distortion = 0.1;
-    let mut on = trainer(config, model, frames().clone());
-    let with = on.train_step().expect("step");
-    let term = with.loss_distortion.expect("distortion term");
-    // A ray's weights are non-negative and sum to at most 1, so its distortion lies in
-    // [0, 1); an untrained field spreads them, so it is above 0.
-    assert!(term > 0.0 && term < 1.0, "{term}");
-    // The same seed draws the same rays: the other terms are unchanged, and the total grows
-    // by the weighted term alone.
-    assert_eq!(
-        (with.loss_rgb, with.loss_lidar),
-        (without.loss_rgb, without.loss_lidar)
-    );
-    let expected = without.loss + 0.1 * term;
+/// The total of `with` is that of `without` plus the weighted term alone.
+fn assert_total_grows_by(without: &StepReport, with: &StepReport, weighted_term: f64) {
+    let expected = without.loss + weighted_term;
     assert!(
         (with.loss - expected).abs() < 1e-5 * (1.0 + expected),
         "{} vs {expected}",
@@ -536,23 +531,35 @@ fn the_distortion_term_joins_the_loss_only_when_weighted() {
 }
 
 #[test]
-fn the_termination_term_joins_the_loss_only_when_weighted() {
-    let (mut config, model) = configs();
-    config.rays.lidar_rays = 256;
-    config.loss.lidar_termination = 0.0;
-    let mut off = trainer(config.clone(), model.clone(), frames().clone());
-    let without = off.train_step().expect("step");
-    assert_eq!(without.loss_termination, None);
+fn the_distortion_term_joins_the_loss_only_when_weighted() {
+    assert_eq!(
+        configs().0.loss.lidar_distortion,
+        0.1,
+        "on in the shipped config"
+    );
+    let (without, with) = steps_without_and_with(|c, w| c.loss.lidar_distortion = w, 0.1);
+    assert_eq!(without.loss_distortion, None);
+    let term = with.loss_distortion.expect("distortion term");
+    // A ray's weights are non-negative and sum to at most 1, so its distortion lies in
+    // [0, 1); an untrained field spreads them, so it is above 0.
+    assert!(term > 0.0 && term < 1.0, "{term}");
+    // The same rays: the other terms are unchanged.
+    assert_eq!(
+        (with.loss_rgb, with.loss_lidar),
+        (without.loss_rgb, without.loss_lidar)
+    );
+    assert_total_grows_by(&without, &with, 0.1 * term);
+}
 
-    config.loss.lidar_termination = 0.05;
-    let mut on = trainer(config, model, frames().clone());
-    let with = on.train_step().expect("step");
+#[test]
+fn the_termination_term_joins_the_loss_only_when_weighted() {
+    let (without, with) = steps_without_and_with(|c, w| c.loss.lidar_termination = w, 0.05);
+    assert_eq!(without.loss_termination, None);
     let term = with.loss_termination.expect("termination term");
     // A ray's negative log-likelihood lies in [0, −ln 1e-6]; an untrained field stops its
     // rays near the car, far from most returns, so it is well above ln 2.
     assert!(term > 1.0 && term < 13.82, "{term}");
-    // The same seed draws the same rays: the other terms are unchanged, and the total grows
-    // by the weighted term alone.
+    // The same rays: the other terms are unchanged.
     assert_eq!(
         (with.loss_rgb, with.loss_lidar, with.loss_distortion),
         (
@@ -561,12 +568,7 @@ fn the_termination_term_joins_the_loss_only_when_weighted() {
             without.loss_distortion
         )
     );
-    let expected = without.loss + 0.05 * term;
-    assert!(
-        (with.loss - expected).abs() < 1e-5 * (1.0 + expected),
-        "{} vs {expected}",
-        with.loss
-    );
+    assert_total_grows_by(&without, &with, 0.05 * term);
 }
 
 #[test]
