@@ -2,7 +2,7 @@
 //! world) as `SensorFrame`s. While one frame is decoded, the next frame's files are already
 //! being read on the I/O pool.
 
-use std::path::PathBuf;
+use std::path::{Component, Path, PathBuf};
 use std::sync::Arc;
 
 use bevworld_graph::io::{spawn_io, wait};
@@ -51,7 +51,9 @@ pub struct DatasetSourceParams {
     /// Shard `i/n`: only scenes whose position in the dataset is i mod n.
     #[serde(default)]
     pub shard: Option<String>,
-    /// When `data` does not exist, generate a synthetic dataset there first.
+    /// A synthetic dataset to make at `generate.dir` when that folder does not exist. It applies
+    /// only while `data` names that folder: pointed elsewhere (`--set source.data=DIR`), a
+    /// missing `data` is an error, never a fabricated dataset.
     #[serde(default)]
     pub generate: Option<GenerateParams>,
 }
@@ -60,6 +62,8 @@ pub struct DatasetSourceParams {
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GenerateParams {
+    /// The folder this block makes; the source generates only when `data` is this folder.
+    pub dir: PathBuf,
     #[serde(default)]
     pub seed: u64,
     #[serde(default = "one")]
@@ -126,6 +130,10 @@ impl DatasetSource {
             return Err(ParamError::field("data", "is empty").with_accepted("a dataset folder"));
         }
         if let Some(generate) = &params.generate {
+            if generate.dir.as_os_str().is_empty() {
+                return Err(ParamError::field("generate", "dir is empty")
+                    .with_accepted("dir: the folder to make, e.g. out/synth-demo"));
+            }
             parse_size(&generate.camera_size).map_err(|message| {
                 ParamError::field("generate", message)
                     .with_accepted("camera_size: WxH, e.g. 400x224")
@@ -146,6 +154,26 @@ impl DatasetSource {
         })
     }
 
+    fn generate(&self, generate: &GenerateParams) -> Result<(), NodeError> {
+        let (camera_width, camera_height) =
+            parse_size(&generate.camera_size).map_err(NodeError::fatal)?;
+        let config = crate::synth::SynthConfig {
+            seed: generate.seed,
+            scenes: generate.scenes,
+            seconds: generate.seconds,
+            camera_width,
+            camera_height,
+            ..Default::default()
+        };
+        tracing::info!(
+            "generating synthetic dataset in {}",
+            self.params.data.display()
+        );
+        crate::synth::generate_in_place(&self.params.data, &config, |_, _| {})
+            .map_err(|e| NodeError::fatal_from(&e))?;
+        Ok(())
+    }
+
     fn start_prefetch(&mut self) {
         let (Some(dataset), Some(&index)) = (&self.dataset, self.indices.get(self.cursor)) else {
             return;
@@ -155,6 +183,15 @@ impl DatasetSource {
             self.prefetch = Some((index, handle));
         }
     }
+}
+
+/// Whether two paths name one folder, read lexically (`./out/a/` and `out/a` do): the folder may
+/// not exist yet, so it cannot be canonicalised.
+fn same_folder(a: &Path, b: &Path) -> bool {
+    fn parts(p: &Path) -> impl Iterator<Item = Component<'_>> {
+        p.components().filter(|c| !matches!(c, Component::CurDir))
+    }
+    parts(a).eq(parts(b))
 }
 
 /// Parses `i/n`.
@@ -178,33 +215,18 @@ pub fn parse_shard(text: &str) -> Result<(usize, usize), String> {
 
 impl Source for DatasetSource {
     fn start(&mut self) -> Result<SourceInfo, NodeError> {
-        if let (Some(generate), false) = (&self.params.generate, self.params.data.exists()) {
-            let (camera_width, camera_height) =
-                parse_size(&generate.camera_size).map_err(NodeError::fatal)?;
-            let config = crate::synth::SynthConfig {
-                seed: generate.seed,
-                scenes: generate.scenes,
-                seconds: generate.seconds,
-                camera_width,
-                camera_height,
-                ..Default::default()
-            };
-            tracing::info!(
-                "generating synthetic dataset in {}",
-                self.params.data.display()
-            );
-            // Generate into a sibling folder and rename, so an interrupted run leaves no
-            // half-made dataset behind for the next run to trust.
-            let staging = self.params.data.with_extension("partial");
-            let _ = std::fs::remove_dir_all(&staging);
-            crate::synth::generate(&staging, &config, |_, _| {})
-                .map_err(|e| NodeError::fatal_from(&e))?;
-            std::fs::rename(&staging, &self.params.data).map_err(|e| {
-                NodeError::fatal(format!(
-                    "{}: cannot move generated dataset into place: {e}",
-                    self.params.data.display()
-                ))
-            })?;
+        if !self.params.data.exists() {
+            if let Some(generate) = &self.params.generate {
+                if !same_folder(&generate.dir, &self.params.data) {
+                    return Err(NodeError::fatal(format!(
+                        "{}: dataset folder does not exist (the graph's `generate` block makes \
+                         {}, not this folder)",
+                        self.params.data.display(),
+                        generate.dir.display()
+                    )));
+                }
+                self.generate(generate)?;
+            }
         }
         let options = DatasetOptions {
             format: self.params.format,
@@ -330,10 +352,22 @@ mod tests {
             field(serde_json::json!({"data": "d", "shard": "2/2"})).as_deref(),
             Some("shard")
         );
-        assert_eq!(
-            field(serde_json::json!({"data": "d", "generate": {"camera_size": "big"}})).as_deref(),
-            Some("generate")
-        );
+        for generate in [
+            serde_json::json!({"dir": "d", "camera_size": "big"}),
+            serde_json::json!({"dir": "", "seed": 1}),
+            serde_json::json!({"seed": 1}),
+            serde_json::json!({"dir": "d", "scenes": 0}),
+        ] {
+            let error = kind
+                .build(&serde_json::json!({"data": "d", "generate": generate}))
+                .err()
+                .unwrap_or_else(|| panic!("{generate} is refused"));
+            assert_eq!(
+                error.field.as_deref(),
+                Some("generate"),
+                "{generate}: {error:?}"
+            );
+        }
         assert_eq!(
             field(serde_json::json!({"data": "d", "format": "waymo"})).as_deref(),
             Some("format")

@@ -697,7 +697,12 @@ fn a_synthetic_set_is_made_once_and_a_folder_of_other_scenes_is_refused() {
         camera_size: "112x64".into(),
     };
     ensure_synthetic(&set).expect("a missing set is made");
-    assert!(!dir.path().join("set.partial").exists());
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .expect("list")
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(left, ["set"], "no staging folder is left beside the set");
     ensure_synthetic(&set).expect("the set it made is accepted");
 
     let other_seed = SynthSet {

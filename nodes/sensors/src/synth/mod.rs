@@ -6,6 +6,7 @@
 //! future: what action-conditioned forecasting needs to be learnable and testable.
 
 pub mod geometry;
+pub mod in_place;
 pub mod render;
 pub mod rig;
 pub mod rng;
@@ -14,5 +15,6 @@ pub mod traffic;
 pub mod world;
 pub mod writer;
 
+pub use in_place::{InPlace, generate_in_place};
 pub use scene::SceneWorld;
 pub use writer::{ImageEncoding, SynthConfig, SynthSummary, VERSION, generate, scene_name};

@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
-use bevworld_sensors::synth::{SynthConfig, scene_name};
+use bevworld_sensors::synth::{SynthConfig, generate_in_place, scene_name};
 use bevworld_sensors::{Dataset, DatasetOptions};
 
 use crate::frame_input::{EncoderArrays, FrameInputs, FrameRays, InputError};
@@ -80,12 +80,10 @@ pub fn ensure_synthetic(set: &SynthSet) -> Result<(), DataError> {
         camera_height: h,
         ..Default::default()
     };
-    // Generate beside the target and rename, so an interrupted run leaves nothing to trust.
-    let staging = set.dir.with_extension("partial");
-    let _ = std::fs::remove_dir_all(&staging);
-    bevworld_sensors::synth::generate(&staging, &config, |_, _| {})
-        .map_err(|e| error(e.to_string()))?;
-    std::fs::rename(&staging, &set.dir).map_err(|e| error(e.to_string()))
+    // Another run may make the same set at once; `generate_in_place` keeps whichever copy lands
+    // first, and the check above then holds for it as for any existing folder.
+    generate_in_place(&set.dir, &config, |_, _| {}).map_err(|e| error(e.to_string()))?;
+    Ok(())
 }
 
 /// "first … last" of a list of scene names, or the one name.
