@@ -266,6 +266,7 @@ fn bad_training_configs_name_every_field() {
     config.frames_per_step = 0;
     config.loss.lidar_distortion = f64::NAN;
     config.loss.lidar_termination = -0.5;
+    config.loss.rgb_l2 = f64::INFINITY;
     let problems = config.problems().join("\n");
     for field in [
         "optimizer.lr",
@@ -275,6 +276,7 @@ fn bad_training_configs_name_every_field() {
         "frames_per_step",
         "loss.lidar_distortion",
         "loss.lidar_termination",
+        "loss.rgb_l2",
     ] {
         assert!(
             problems.contains(field),
@@ -501,8 +503,8 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
     );
 }
 
-/// One step with a LiDAR loss term's weight at 0 and one at `weight`, from the same seed, so
-/// both draw the same rays (256 a frame).
+/// One step with a loss term's weight at 0 and one at `weight`, from the same seed, so both
+/// draw the same rays (256 LiDAR rays a frame).
 fn steps_without_and_with(
     set_weight: impl Fn(&mut TrainConfig, f64),
     weight: f64,
@@ -569,6 +571,31 @@ fn the_termination_term_joins_the_loss_only_when_weighted() {
         )
     );
     assert_total_grows_by(&without, &with, 0.05 * term);
+}
+
+#[test]
+fn the_squared_rgb_term_joins_the_loss_only_when_weighted() {
+    let weight = 5.0;
+    let (without, with) = steps_without_and_with(|c, w| c.loss.rgb_l2 = w, weight);
+    // The same rays and the same L1 terms; the step's total grows by the weighted mean squared
+    // error, which is not logged apart.
+    assert_eq!(
+        (with.loss_rgb, with.loss_lidar, with.loss_distortion),
+        (
+            without.loss_rgb,
+            without.loss_lidar,
+            without.loss_distortion
+        )
+    );
+    let mean_abs = with.loss_rgb.expect("RGB term");
+    let mean_squared = (with.loss - without.loss) / weight;
+    // Rendered and input colours lie in [0, 1], so every error e has e² <= |e|; and
+    // mean(e²) >= mean(|e|)², per frame and again over the step's frames (Jensen).
+    assert!(
+        mean_squared <= mean_abs * (1.0 + 1e-4)
+            && mean_squared >= mean_abs * mean_abs * (1.0 - 1e-4),
+        "mean squared {mean_squared} against mean absolute {mean_abs}"
+    );
 }
 
 #[test]

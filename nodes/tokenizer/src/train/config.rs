@@ -66,6 +66,10 @@ impl std::str::FromStr for LidarDraw {
 pub struct LossWeights {
     /// L1 between rendered and input RGB, in [0, 1].
     pub rgb_l1: f64,
+    /// Mean squared error between rendered and input RGB, in [0, 1]: the error PSNR measures.
+    /// 0 (the default) leaves it out.
+    #[serde(default)]
+    pub rgb_l2: f64,
     /// L1 between rendered depth and LiDAR range, in metres.
     pub lidar_l1: f64,
     /// The distortion loss (Mip-NeRF 360) on the LiDAR rays' render weights: pulls each ray's
@@ -222,6 +226,7 @@ impl TrainConfig {
         }
         for (name, value) in [
             ("loss.rgb_l1", self.loss.rgb_l1),
+            ("loss.rgb_l2", self.loss.rgb_l2),
             ("loss.lidar_l1", self.loss.lidar_l1),
             ("loss.lidar_distortion", self.loss.lidar_distortion),
             ("loss.lidar_termination", self.loss.lidar_termination),

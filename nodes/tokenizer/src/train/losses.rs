@@ -8,3 +8,9 @@ use burn::prelude::*;
 pub fn l1<const D: usize>(prediction: Tensor<D>, target: Tensor<D>) -> Tensor<1> {
     (prediction - target).abs().mean()
 }
+
+/// Mean squared difference.
+// [..] x [..] -> [1]
+pub fn mse<const D: usize>(prediction: Tensor<D>, target: Tensor<D>) -> Tensor<1> {
+    (prediction - target).powi_scalar(2).mean()
+}

@@ -26,7 +26,7 @@ use crate::train::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
 };
 use crate::train::distortion::distortion;
-use crate::train::losses::l1;
+use crate::train::losses::{l1, mse};
 use crate::train::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG16};
 use crate::train::replica::replica;
 use crate::train::rng::SplitMix64;
@@ -620,6 +620,10 @@ fn frame_outcome(
         let camera = camera_losses(inputs, model, frame, &draw.cameras, &voxels, depth_row);
         rgb_value = Some(scalar(camera.loss_rgb.clone().detach()));
         loss = loss + camera.loss_rgb.mul_scalar(weights.rgb_l1);
+        if weights.rgb_l2 > 0.0 {
+            let squared = mse(camera.rgb.clone(), camera.target.clone());
+            loss = loss + squared.mul_scalar(weights.rgb_l2);
+        }
         if let Some(perceptual) = inputs.perceptual {
             let term = perceptual.forward(camera.rgb.clone(), camera.target.clone());
             perceptual_value = Some(scalar(term.clone().detach()));
