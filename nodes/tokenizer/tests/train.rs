@@ -757,6 +757,19 @@ fn a_synthetic_set_is_made_once_and_a_folder_of_other_scenes_is_refused() {
         message.contains("2 scene(s) from seed 5 (synth-000005 … synth-000006)"),
         "{message}"
     );
+    let bad_size = SynthSet {
+        dir: dir.path().join("other"),
+        camera_size: "wide".into(),
+        ..set.clone()
+    };
+    let message = ensure_synthetic(&bad_size)
+        .expect_err("a size that is not WxH")
+        .to_string();
+    assert!(
+        message.contains("other") && message.contains("camera_size"),
+        "{message}"
+    );
+    assert!(!dir.path().join("other").exists(), "nothing made");
 }
 
 #[test]

@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
+use bevworld_sensors::source::parse_size;
 use bevworld_sensors::synth::{SynthConfig, generate_in_place, scene_name};
 use bevworld_sensors::{Dataset, DatasetOptions};
 
@@ -38,51 +39,47 @@ pub struct TrainingFrame {
     pub lidar_points: Vec<[f32; 3]>,
 }
 
-/// Makes `set` with the synthetic world unless its folder exists. An existing folder must hold
-/// exactly the set's scenes: one made for another seed range would silently change what a run
-/// trains or validates on.
+/// Makes `set` with the synthetic world unless its folder exists. The folder, found or made,
+/// must hold exactly the set's scenes: one made for another seed range would silently change
+/// what a run trains or validates on.
 pub fn ensure_synthetic(set: &SynthSet) -> Result<(), DataError> {
     let error = |message: String| DataError::Dataset {
         path: set.dir.display().to_string(),
         message,
     };
-    if set.dir.exists() {
-        let dataset = Dataset::open(&set.dir, &DatasetOptions::default())
-            .map_err(|e| error(e.to_string()))?;
-        let mut held: Vec<&str> = dataset.scene_names();
-        held.dedup();
-        let wanted: Vec<String> = (0..set.scenes as u64)
-            .map(|k| scene_name(set.seed + k))
-            .collect();
-        if held != wanted {
-            return Err(error(format!(
-                "holds {} scene(s) ({}), but the config's set is {} scene(s) from seed {} ({}): \
-                 remove the folder to make it anew, or give the set another `dir`",
-                held.len(),
-                span(&held),
-                set.scenes,
-                set.seed,
-                span(&wanted),
-            )));
-        }
-        return Ok(());
+    if !set.dir.exists() {
+        let (camera_width, camera_height) = parse_size(&set.camera_size)
+            .map_err(|message| error(format!("camera_size: {message}")))?;
+        let config = SynthConfig {
+            seed: set.seed,
+            scenes: set.scenes,
+            seconds: set.seconds,
+            camera_width,
+            camera_height,
+            ..Default::default()
+        };
+        // Another run may make a set in the same folder at once: `generate_in_place` keeps
+        // whichever copy lands first, and the check below holds it to this config's scenes.
+        generate_in_place(&set.dir, &config, |_, _| {}).map_err(|e| error(e.to_string()))?;
     }
-    let (w, h) = set
-        .camera_size
-        .split_once('x')
-        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
-        .ok_or_else(|| error(format!("camera_size '{}' is not WxH", set.camera_size)))?;
-    let config = SynthConfig {
-        seed: set.seed,
-        scenes: set.scenes,
-        seconds: set.seconds,
-        camera_width: w,
-        camera_height: h,
-        ..Default::default()
-    };
-    // Another run may make the same set at once; `generate_in_place` keeps whichever copy lands
-    // first, and the check above then holds for it as for any existing folder.
-    generate_in_place(&set.dir, &config, |_, _| {}).map_err(|e| error(e.to_string()))?;
+    let dataset =
+        Dataset::open(&set.dir, &DatasetOptions::default()).map_err(|e| error(e.to_string()))?;
+    let mut held: Vec<&str> = dataset.scene_names();
+    held.dedup();
+    let wanted: Vec<String> = (0..set.scenes as u64)
+        .map(|k| scene_name(set.seed + k))
+        .collect();
+    if held != wanted {
+        return Err(error(format!(
+            "holds {} scene(s) ({}), but the config's set is {} scene(s) from seed {} ({}): \
+             remove the folder to make it anew, or give the set another `dir`",
+            held.len(),
+            span(&held),
+            set.scenes,
+            set.seed,
+            span(&wanted),
+        )));
+    }
     Ok(())
 }
 
