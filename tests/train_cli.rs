@@ -356,12 +356,7 @@ fn a_loss_weight_flag_is_checked_recorded_and_logged(
         let run = dir.path().join(format!("run-{weight}"));
         let good = bevworld_owned(&args(&run, weight));
         assert!(good.status.success(), "{}", text(&good));
-        let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
-        let recorded_weight = recorded
-            .lines()
-            .find_map(|l| l.trim().strip_prefix(&format!("{field}:")))
-            .and_then(|v| v.trim().parse::<f64>().ok());
-        assert_eq!(recorded_weight, weight.parse().ok(), "{recorded}");
+        assert_eq!(recorded_loss_weight(&run, field), weight.parse().ok());
         let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
         let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
         let position = header.iter().position(|h| *h == column).expect(column);
@@ -400,6 +395,81 @@ fn the_lidar_termination_weight_is_checked_recorded_and_logged() {
     );
 }
 
+/// The loss weight `field` as the run recorded it in `RUN/train.yaml`.
+fn recorded_loss_weight(run: &Path, field: &str) -> Option<f64> {
+    let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
+    recorded
+        .lines()
+        .find_map(|l| l.trim().strip_prefix(&format!("{field}:")))
+        .and_then(|v| v.trim().parse::<f64>().ok())
+}
+
+/// The training rows of `RUN/metrics.csv`, each field by its column's name.
+fn training_rows(run: &Path) -> Vec<std::collections::BTreeMap<String, String>> {
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    lines
+        .map(|line| line.split(',').collect::<Vec<_>>())
+        .inspect(|fields| assert_eq!(fields.len(), header.len(), "{fields:?}"))
+        .filter(|fields| fields[1] == "train")
+        .map(|fields| {
+            header
+                .iter()
+                .zip(fields)
+                .map(|(h, f)| (h.to_string(), f.to_string()))
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn the_squared_rgb_weight_is_checked_recorded_and_logged() {
+    // 5 in the committed config; the flag overrides it either way. Colours lie in [0, 1], so
+    // a mean squared error does too.
+    a_loss_weight_flag_is_checked_recorded_and_logged(
+        "rgb-l2",
+        "rgb_l2",
+        "loss_rgb_squared",
+        1e-9..1.0,
+    );
+}
+
+#[test]
+fn the_rgb_l1_weight_is_checked_recorded_and_weighs_the_loss() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth(&data, "6");
+    let run = dir.path().join("run-bad");
+    let bad = bevworld_owned(&train_args(&run, &data, &data, "2", &["--rgb-l1=-1"]));
+    assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
+    assert!(
+        text(&bad).contains("--rgb-l1: loss.rgb_l1: -1"),
+        "{}",
+        text(&bad)
+    );
+    assert!(!run.exists(), "{}", text(&bad));
+
+    // RGB L1 alone at weight 2 (the squared term off): every training row's loss is twice the
+    // RGB term plus the committed LiDAR (0.025) and distortion (0.1) terms.
+    let run = dir.path().join("run");
+    let flags = ["--rgb-l1=2", "--rgb-l2=0"];
+    let good = bevworld_owned(&train_args(&run, &data, &data, "2", &flags));
+    assert!(good.status.success(), "{}", text(&good));
+    assert_eq!(recorded_loss_weight(&run, "rgb_l1"), Some(2.0));
+    let rows = training_rows(&run);
+    assert_eq!(rows.len(), 2, "{rows:?}");
+    for row in rows {
+        let value = |name: &str| row[name].parse::<f64>().unwrap_or(f64::NAN);
+        assert_eq!(row["loss_rgb_squared"], "", "{row:?}");
+        let expected = 2.0 * value("loss_rgb")
+            + 0.025 * value("loss_lidar")
+            + 0.1 * value("loss_distortion");
+        assert!(value("loss_rgb") > 0.0, "{row:?}");
+        assert!((value("loss") - expected).abs() < 1e-5, "{row:?}: {expected}");
+    }
+}
+
 #[test]
 fn the_lidar_l1_weight_is_checked_recorded_and_weighs_the_loss() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -423,37 +493,26 @@ fn the_lidar_l1_weight_is_checked_recorded_and_weighs_the_loss() {
         assert!(!run.exists(), "{}", text(&bad));
     }
 
-    // The run records the weight, and every training row's loss is the RGB term plus the
-    // LiDAR term at that weight plus the distortion term at the committed config's 0.1 (the
-    // perceptual term has no weights here and the GAN has not started).
+    // The run records the weight, and every training row's loss is the RGB terms at the
+    // committed config's weights (L1 0.5, squared 5), the LiDAR term at the flag's weight and
+    // the distortion term at the committed 0.1 (the perceptual term has no weights here and
+    // the GAN has not started).
     let run = dir.path().join("run");
     let good = bevworld_owned(&args(&run, "0.5"));
     assert!(good.status.success(), "{}", text(&good));
-    let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
-    let recorded_weight = recorded
-        .lines()
-        .find_map(|l| l.trim().strip_prefix("lidar_l1:"))
-        .and_then(|v| v.trim().parse::<f64>().ok());
-    assert_eq!(recorded_weight, Some(0.5), "{recorded}");
-    let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
-    let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
-    let column = |name: &str| header.iter().position(|h| *h == name).expect(name);
-    let (loss, rgb, lidar, distortion) = (
-        column("loss"),
-        column("loss_rgb"),
-        column("loss_lidar"),
-        column("loss_distortion"),
-    );
-    let mut rows = 0;
-    for line in csv.lines().skip(1).filter(|l| l.contains(",train,")) {
-        let fields: Vec<f64> = line
-            .split(',')
-            .map(|f| f.parse::<f64>().unwrap_or(f64::NAN))
-            .collect();
-        let expected = fields[rgb] + 0.5 * fields[lidar] + 0.1 * fields[distortion];
-        assert!(fields[lidar] > 0.1, "{line}");
-        assert!((fields[loss] - expected).abs() < 1e-5, "{line}: {expected}");
-        rows += 1;
+    assert_eq!(recorded_loss_weight(&run, "lidar_l1"), Some(0.5));
+    let rows = training_rows(&run);
+    assert_eq!(rows.len(), 2, "{rows:?}");
+    for row in rows {
+        let value = |name: &str| row[name].parse::<f64>().unwrap_or(f64::NAN);
+        let expected = 0.5 * value("loss_rgb")
+            + 5.0 * value("loss_rgb_squared")
+            + 0.5 * value("loss_lidar")
+            + 0.1 * value("loss_distortion");
+        assert!(value("loss_lidar") > 0.1, "{row:?}");
+        // Colours lie in [0, 1]: the squared error is positive and below the absolute one.
+        let squared = value("loss_rgb_squared");
+        assert!(squared > 0.0 && squared <= value("loss_rgb"), "{row:?}");
+        assert!((value("loss") - expected).abs() < 1e-5, "{row:?}: {expected}");
     }
-    assert_eq!(rows, 2, "{csv}");
 }

@@ -439,6 +439,7 @@ fn the_gan_switches_on_at_the_configured_step() {
     // The total is the weighted sum of its parts.
     let w = &trainer.config.loss;
     let expected = w.rgb_l1 * report.loss_rgb.expect("rgb")
+        + w.rgb_l2 * report.loss_rgb_squared.expect("squared rgb")
         + w.lidar_l1 * report.loss_lidar.expect("lidar")
         + w.lidar_distortion * report.loss_distortion.expect("distortion")
         + w.gan_generator * gan;
@@ -493,6 +494,7 @@ fn the_perceptual_term_needs_weights_and_joins_the_loss_when_given() {
     let term = report.loss_perceptual.expect("perceptual term");
     let w = &on.config.loss;
     let expected = w.rgb_l1 * report.loss_rgb.expect("rgb")
+        + w.rgb_l2 * report.loss_rgb_squared.expect("squared rgb")
         + w.lidar_l1 * report.loss_lidar.expect("lidar")
         + w.lidar_distortion * report.loss_distortion.expect("distortion")
         + w.perceptual * term;
@@ -577,8 +579,7 @@ fn the_termination_term_joins_the_loss_only_when_weighted() {
 fn the_squared_rgb_term_joins_the_loss_only_when_weighted() {
     let weight = 5.0;
     let (without, with) = steps_without_and_with(|c, w| c.loss.rgb_l2 = w, weight);
-    // The same rays and the same L1 terms; the step's total grows by the weighted mean squared
-    // error, which is not logged apart.
+    // The same rays and the same L1 terms; the squared term is reported only when weighted.
     assert_eq!(
         (with.loss_rgb, with.loss_lidar, with.loss_distortion),
         (
@@ -587,8 +588,11 @@ fn the_squared_rgb_term_joins_the_loss_only_when_weighted() {
             without.loss_distortion
         )
     );
+    assert_eq!(without.loss_rgb_squared, None);
+    let mean_squared = with.loss_rgb_squared.expect("squared RGB term");
+    // The step's total grows by the weighted term it reports.
+    assert_total_grows_by(&without, &with, weight * mean_squared);
     let mean_abs = with.loss_rgb.expect("RGB term");
-    let mean_squared = (with.loss - without.loss) / weight;
     // Rendered and input colours lie in [0, 1], so every error e has e² <= |e|; and
     // mean(e²) >= mean(|e|)², per frame and again over the step's frames (Jensen).
     assert!(
@@ -652,6 +656,12 @@ fn an_ablation_model_reads_and_renders_only_its_modality() {
         let mut trainer = trainer(config.clone(), model, frames().clone());
         let report = trainer.train_step().expect("step");
         assert_eq!(report.loss_rgb.is_some(), renders_camera, "{modalities:?}");
+        // The committed config weighs the squared RGB term: only a camera model has it.
+        assert_eq!(
+            report.loss_rgb_squared.is_some(),
+            renders_camera,
+            "{modalities:?}"
+        );
         assert_eq!(
             report.loss_lidar.is_some(),
             !renders_camera,
@@ -665,6 +675,7 @@ fn an_ablation_model_reads_and_renders_only_its_modality() {
         );
         let w = &trainer.config.loss;
         let expected = report.loss_rgb.map_or(0.0, |l| w.rgb_l1 * l)
+            + report.loss_rgb_squared.map_or(0.0, |l| w.rgb_l2 * l)
             + report.loss_lidar.map_or(0.0, |l| w.lidar_l1 * l)
             + report
                 .loss_distortion

@@ -6,7 +6,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-pub const HEADER: &str = "step,phase,lr,loss,loss_rgb,loss_lidar,loss_perceptual,loss_gan,loss_discriminator,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s,loss_distortion,loss_termination";
+pub const HEADER: &str = "step,phase,lr,loss,loss_rgb,loss_lidar,loss_perceptual,loss_gan,loss_discriminator,grad_norm,psnr_db,ssim,chamfer_m2,elapsed_s,loss_distortion,loss_termination,loss_rgb_squared";
 
 pub struct MetricsLog {
     path: PathBuf,
@@ -31,6 +31,7 @@ pub struct Row {
     pub elapsed_s: f64,
     pub loss_distortion: Option<f64>,
     pub loss_termination: Option<f64>,
+    pub loss_rgb_squared: Option<f64>,
 }
 
 impl MetricsLog {
@@ -60,7 +61,7 @@ impl MetricsLog {
     pub fn append(&mut self, row: &Row) -> std::io::Result<()> {
         let f = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
         let line = format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},{},{},{}\n",
             row.step,
             row.phase,
             f(row.lr),
@@ -76,7 +77,8 @@ impl MetricsLog {
             f(row.chamfer_m2),
             row.elapsed_s,
             f(row.loss_distortion),
-            f(row.loss_termination)
+            f(row.loss_termination),
+            f(row.loss_rgb_squared)
         );
         let mut file = std::fs::OpenOptions::new().append(true).open(&self.path)?;
         file.write_all(line.as_bytes())

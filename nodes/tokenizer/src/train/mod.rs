@@ -18,5 +18,5 @@ pub mod schedule;
 pub mod termination;
 pub mod trainer;
 
-pub use config::{LidarDraw, TrainConfig};
+pub use config::{LidarDraw, LossWeights, TrainConfig};
 pub use trainer::{StepReport, TrainError, Trainer, ValidationReport};

@@ -51,6 +51,7 @@ struct FrameOutcome {
     grads: GradientsParams,
     loss: f64,
     rgb: Option<f64>,
+    rgb_squared: Option<f64>,
     lidar: Option<f64>,
     distortion: Option<f64>,
     termination: Option<f64>,
@@ -116,6 +117,8 @@ pub struct StepReport {
     pub loss: f64,
     /// The L1 terms of the modalities the model renders (`modalities`).
     pub loss_rgb: Option<f64>,
+    /// The mean squared RGB error, when `loss.rgb_l2` is above 0.
+    pub loss_rgb_squared: Option<f64>,
     pub loss_lidar: Option<f64>,
     /// The LiDAR rays' distortion term, when `loss.lidar_distortion` is above 0.
     pub loss_distortion: Option<f64>,
@@ -392,6 +395,7 @@ impl Trainer {
             values.map(|v| v.iter().sum::<f64>() / count)
         };
         let (loss_rgb, loss_lidar) = (mean(|o| o.rgb), mean(|o| o.lidar));
+        let loss_rgb_squared = mean(|o| o.rgb_squared);
         let loss_distortion = mean(|o| o.distortion);
         let loss_termination = mean(|o| o.termination);
         let (loss_perceptual, loss_gan) = (mean(|o| o.perceptual), mean(|o| o.gan));
@@ -437,6 +441,7 @@ impl Trainer {
             lr,
             loss,
             loss_rgb,
+            loss_rgb_squared,
             loss_lidar,
             loss_distortion,
             loss_termination,
@@ -594,6 +599,7 @@ fn frame_outcome(
     );
     let mut loss = Tensor::<1>::zeros([1], device);
     let (mut rgb_value, mut lidar_value) = (None, None);
+    let mut rgb_squared_value = None;
     let (mut distortion_value, mut termination_value) = (None, None);
     if inputs.model_config.uses(Modality::Lidar) {
         let term = lidar_loss(
@@ -622,6 +628,7 @@ fn frame_outcome(
         loss = loss + camera.loss_rgb.mul_scalar(weights.rgb_l1);
         if weights.rgb_l2 > 0.0 {
             let squared = mse(camera.rgb.clone(), camera.target.clone());
+            rgb_squared_value = Some(scalar(squared.clone().detach()));
             loss = loss + squared.mul_scalar(weights.rgb_l2);
         }
         if let Some(perceptual) = inputs.perceptual {
@@ -640,6 +647,8 @@ fn frame_outcome(
     if !value.is_finite() {
         let what = if !rgb_value.is_none_or(f64::is_finite) {
             "RGB loss"
+        } else if !rgb_squared_value.is_none_or(f64::is_finite) {
+            "squared RGB loss"
         } else if !lidar_value.is_none_or(f64::is_finite) {
             "LiDAR loss"
         } else if !distortion_value.is_none_or(f64::is_finite) {
@@ -660,6 +669,7 @@ fn frame_outcome(
         grads: GradientsParams::from_grads(scaled.backward(), model),
         loss: value,
         rgb: rgb_value,
+        rgb_squared: rgb_squared_value,
         lidar: lidar_value,
         distortion: distortion_value,
         termination: termination_value,
