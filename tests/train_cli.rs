@@ -292,13 +292,11 @@ fn a_run_on_another_ray_grid_records_it_and_resumes_on_it() {
 
     // A stride the images cannot take is refused before anything is written.
     let bad = bevworld_owned(&args(&["--camera-stride", "3"]));
-    assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
-    assert!(
-        text(&bad).contains("--camera-stride: render.camera_stride: 3 must be a power of two"),
-        "{}",
-        text(&bad)
+    assert_refused_before_writing(
+        &bad,
+        &run,
+        "--camera-stride: render.camera_stride: 3 must be a power of two",
     );
-    assert!(!run.exists(), "{}", text(&bad));
 
     // The 1/2 grid (the tiny config's is 1/4) is what the run's model config records.
     let first = bevworld_owned(&args(&["--camera-stride", "2", "--until", "1"]));
@@ -344,13 +342,7 @@ fn a_loss_weight_flag_is_checked_recorded_and_logged(
 
     let run = dir.path().join("run");
     let bad = bevworld_owned(&args(&run, "-1"));
-    assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
-    assert!(
-        text(&bad).contains(&format!("--{flag}: loss.{field}: -1")),
-        "{}",
-        text(&bad)
-    );
-    assert!(!run.exists(), "{}", text(&bad));
+    assert_refused_before_writing(&bad, &run, &format!("--{flag}: loss.{field}: -1"));
 
     for (weight, on) in [("0.25", true), ("0", false)] {
         let run = dir.path().join(format!("run-{weight}"));
@@ -393,6 +385,13 @@ fn the_lidar_termination_weight_is_checked_recorded_and_logged() {
         "loss_termination",
         1e-9..13.82,
     );
+}
+
+/// The command failed with status 1, its output names `message`, and it wrote no run folder.
+fn assert_refused_before_writing(bad: &std::process::Output, run: &Path, message: &str) {
+    assert_eq!(bad.status.code(), Some(1), "{}", text(bad));
+    assert!(text(bad).contains(message), "{}", text(bad));
+    assert!(!run.exists(), "{}", text(bad));
 }
 
 /// The loss weight `field` as the run recorded it in `RUN/train.yaml`.
@@ -442,13 +441,7 @@ fn the_rgb_l1_weight_is_checked_recorded_and_weighs_the_loss() {
     synth(&data, "6");
     let run = dir.path().join("run-bad");
     let bad = bevworld_owned(&train_args(&run, &data, &data, "2", &["--rgb-l1=-1"]));
-    assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
-    assert!(
-        text(&bad).contains("--rgb-l1: loss.rgb_l1: -1"),
-        "{}",
-        text(&bad)
-    );
-    assert!(!run.exists(), "{}", text(&bad));
+    assert_refused_before_writing(&bad, &run, "--rgb-l1: loss.rgb_l1: -1");
 
     // RGB L1 alone at weight 2 (the squared term off): every training row's loss is twice the
     // RGB term plus the committed LiDAR (0.025) and distortion (0.1) terms.
@@ -462,11 +455,13 @@ fn the_rgb_l1_weight_is_checked_recorded_and_weighs_the_loss() {
     for row in rows {
         let value = |name: &str| row[name].parse::<f64>().unwrap_or(f64::NAN);
         assert_eq!(row["loss_rgb_squared"], "", "{row:?}");
-        let expected = 2.0 * value("loss_rgb")
-            + 0.025 * value("loss_lidar")
-            + 0.1 * value("loss_distortion");
+        let expected =
+            2.0 * value("loss_rgb") + 0.025 * value("loss_lidar") + 0.1 * value("loss_distortion");
         assert!(value("loss_rgb") > 0.0, "{row:?}");
-        assert!((value("loss") - expected).abs() < 1e-5, "{row:?}: {expected}");
+        assert!(
+            (value("loss") - expected).abs() < 1e-5,
+            "{row:?}: {expected}"
+        );
     }
 }
 
@@ -484,13 +479,7 @@ fn the_lidar_l1_weight_is_checked_recorded_and_weighs_the_loss() {
     for weight in ["-0.5", "NaN"] {
         let run = dir.path().join("run-bad");
         let bad = bevworld_owned(&args(&run, weight));
-        assert_eq!(bad.status.code(), Some(1), "{}", text(&bad));
-        assert!(
-            text(&bad).contains(&format!("--lidar-l1: loss.lidar_l1: {weight}")),
-            "{}",
-            text(&bad)
-        );
-        assert!(!run.exists(), "{}", text(&bad));
+        assert_refused_before_writing(&bad, &run, &format!("--lidar-l1: loss.lidar_l1: {weight}"));
     }
 
     // The run records the weight, and every training row's loss is the RGB terms at the
@@ -513,6 +502,9 @@ fn the_lidar_l1_weight_is_checked_recorded_and_weighs_the_loss() {
         // Colours lie in [0, 1]: the squared error is positive and below the absolute one.
         let squared = value("loss_rgb_squared");
         assert!(squared > 0.0 && squared <= value("loss_rgb"), "{row:?}");
-        assert!((value("loss") - expected).abs() < 1e-5, "{row:?}: {expected}");
+        assert!(
+            (value("loss") - expected).abs() < 1e-5,
+            "{row:?}: {expected}"
+        );
     }
 }
