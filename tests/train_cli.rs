@@ -348,7 +348,7 @@ fn a_loss_weight_flag_is_checked_recorded_and_logged(
         let run = dir.path().join(format!("run-{weight}"));
         let good = bevworld_owned(&args(&run, weight));
         assert!(good.status.success(), "{}", text(&good));
-        assert_eq!(recorded_loss_weight(&run, field), weight.parse().ok());
+        assert_eq!(recorded_value(&run, field), weight.parse().ok());
         let csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
         let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
         let position = header.iter().position(|h| *h == column).expect(column);
@@ -394,8 +394,8 @@ fn assert_refused_before_writing(bad: &std::process::Output, run: &Path, message
     assert!(!run.exists(), "{}", text(bad));
 }
 
-/// The loss weight `field` as the run recorded it in `RUN/train.yaml`.
-fn recorded_loss_weight(run: &Path, field: &str) -> Option<f64> {
+/// The number `field` (a loss weight, a step count) as the run recorded it in `RUN/train.yaml`.
+fn recorded_value(run: &Path, field: &str) -> Option<f64> {
     let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
     recorded
         .lines()
@@ -420,6 +420,38 @@ fn training_rows(run: &Path) -> Vec<std::collections::BTreeMap<String, String>> 
                 .collect()
         })
         .collect()
+}
+
+#[test]
+fn steps_sets_the_decay_horizon_where_until_keeps_the_configs() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth(&data, "4");
+    let (committed, _) = bevworld_tokenizer::train::TrainConfig::from_yaml_file(
+        &common::repo().join("configs/models/train-tokenizer-tiny.yaml"),
+    )
+    .expect("the committed training config");
+    let horizon = committed.optimizer.decay_steps.expect("a decay horizon") as f64;
+
+    // `--until` alone: the committed schedule, its horizon recorded for `--resume`.
+    let kept = dir.path().join("kept");
+    let mut args: Vec<String> = ["train", "tokenizer", "--out"].map(String::from).to_vec();
+    args.push(kept.display().to_string());
+    for (flag, value) in [("--data", &data), ("--val", &data)] {
+        args.extend([flag.to_string(), value.display().to_string()]);
+    }
+    args.extend(["--until".into(), "1".into()]);
+    let first = bevworld_owned(&args);
+    assert!(first.status.success(), "{}", text(&first));
+    assert_eq!(recorded_value(&kept, "decay_steps"), Some(horizon));
+    assert_eq!(recorded_value(&kept, "steps"), Some(committed.steps as f64));
+
+    // `--steps N`: N steps that decay over N, the config's horizon set aside.
+    let own = dir.path().join("own");
+    let second = bevworld_owned(&train_args(&own, &data, &data, "5", &["--until", "1"]));
+    assert!(second.status.success(), "{}", text(&second));
+    assert_eq!(recorded_value(&own, "steps"), Some(5.0));
+    assert_eq!(recorded_value(&own, "decay_steps"), None);
 }
 
 #[test]
@@ -449,7 +481,7 @@ fn the_rgb_l1_weight_is_checked_recorded_and_weighs_the_loss() {
     let flags = ["--rgb-l1=2", "--rgb-l2=0"];
     let good = bevworld_owned(&train_args(&run, &data, &data, "2", &flags));
     assert!(good.status.success(), "{}", text(&good));
-    assert_eq!(recorded_loss_weight(&run, "rgb_l1"), Some(2.0));
+    assert_eq!(recorded_value(&run, "rgb_l1"), Some(2.0));
     let rows = training_rows(&run);
     assert_eq!(rows.len(), 2, "{rows:?}");
     for row in rows {
@@ -489,7 +521,7 @@ fn the_lidar_l1_weight_is_checked_recorded_and_weighs_the_loss() {
     let run = dir.path().join("run");
     let good = bevworld_owned(&args(&run, "0.5"));
     assert!(good.status.success(), "{}", text(&good));
-    assert_eq!(recorded_loss_weight(&run, "lidar_l1"), Some(0.5));
+    assert_eq!(recorded_value(&run, "lidar_l1"), Some(0.5));
     let rows = training_rows(&run);
     assert_eq!(rows.len(), 2, "{rows:?}");
     for row in rows {

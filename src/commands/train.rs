@@ -31,7 +31,9 @@ pub struct TrainTokenizerArgs {
     /// Continue from the run folder's newest checkpoint.
     #[arg(long)]
     pub resume: bool,
-    /// Override the config's step count.
+    /// Override the config's step count; the cosine decay then ends at the last step (the
+    /// config's `optimizer.decay_steps`, 7,800 in the committed tiny config, is set aside), so
+    /// `--steps 7800` runs that config's whole schedule.
     #[arg(long)]
     pub steps: Option<usize>,
     /// Stop after this step, keeping the config's schedule: the run equals the first N steps
@@ -148,7 +150,10 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         model_config.render.camera_stride = started.render.camera_stride;
     }
     if let Some(steps) = args.steps {
+        // A run given its own length decays over it: the fits and ablations that name a step
+        // count keep the schedule they were measured with.
         config.steps = steps;
+        config.optimizer.decay_steps = None;
     }
     if let Some(text) = &args.lidar_draw {
         config.rays.lidar_draw = text

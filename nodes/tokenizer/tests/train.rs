@@ -267,6 +267,7 @@ fn bad_training_configs_name_every_field() {
     config.loss.lidar_distortion = f64::NAN;
     config.loss.lidar_termination = -0.5;
     config.loss.rgb_l2 = f64::INFINITY;
+    config.optimizer.decay_steps = Some(0);
     let problems = config.problems().join("\n");
     for field in [
         "optimizer.lr",
@@ -277,6 +278,7 @@ fn bad_training_configs_name_every_field() {
         "loss.lidar_distortion",
         "loss.lidar_termination",
         "loss.rgb_l2",
+        "optimizer.decay_steps",
     ] {
         assert!(
             problems.contains(field),
@@ -321,6 +323,49 @@ fn the_schedule_warms_up_then_follows_the_cosine() {
     assert!((learning_rate(1e-3, 10, 110, 0.1, 10) - 1e-3).abs() < 1e-12);
     assert!((learning_rate(1e-3, 10, 110, 0.1, 60) - 0.55e-3).abs() < 1e-12);
     assert!((learning_rate(1e-3, 10, 110, 0.1, 110) - 1e-4).abs() < 1e-12);
+}
+
+#[test]
+fn decay_steps_stops_a_run_part_way_down_a_longer_cosine() {
+    let (mut config, model) = configs();
+    config.optimizer.warmup_steps = 0;
+    config.optimizer.decay_steps = Some(4);
+    config.steps = 2;
+    config.rays.lidar_rays = 64;
+    config.rays.cameras_per_step = 1;
+    let (lr, floor) = (config.optimizer.lr, config.optimizer.final_lr_fraction);
+    let mut run = trainer(config, model, frames().clone());
+    let rates: Vec<f64> = (0..2).map(|_| run.train_step().expect("step").lr).collect();
+    assert!(run.is_done());
+    // Steps 0 and 1 of a 4-step cosine: the peak, then ½(1 + cos(π/4)) of the way from the
+    // floor to it; a 2-step schedule would have stepped at the peak and half way down.
+    let second = lr * (floor + (1.0 - floor) * 0.5 * (1.0 + std::f64::consts::FRAC_1_SQRT_2));
+    assert!((rates[0] - lr).abs() < 1e-15, "{rates:?}");
+    assert!(
+        (rates[1] - second).abs() < 1e-15,
+        "{rates:?} against {second}"
+    );
+    assert!((learning_rate(lr, 0, 2, floor, 1) - rates[1]).abs() > 1e-5);
+}
+
+#[test]
+fn the_committed_decay_horizon_survives_the_run_folders_copy_of_the_config() {
+    // A resumed run reads the config its run folder recorded, so the horizon must be written.
+    let (config, _) = configs();
+    let horizon = config
+        .optimizer
+        .decay_steps
+        .expect("the committed config sets decay_steps");
+    assert!(horizon > config.steps, "{horizon} <= {}", config.steps);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("train.yaml");
+    std::fs::write(&path, config.to_yaml().expect("yaml")).expect("write");
+    let (again, _) = TrainConfig::from_yaml_file(&path).expect("reads back");
+    assert_eq!(again.optimizer.decay_steps, Some(horizon));
+    // Absent, it is the run's own length, and stays absent.
+    let mut plain = config.clone();
+    plain.optimizer.decay_steps = None;
+    assert!(!plain.to_yaml().expect("yaml").contains("decay_steps"));
 }
 
 #[test]

@@ -19,6 +19,11 @@ pub struct OptimizerConfig {
     pub warmup_steps: usize,
     /// The cosine decay ends at `lr · final_lr_fraction`.
     pub final_lr_fraction: f64,
+    /// The step at which the cosine decay reaches its floor; absent: `steps`, the run's end.
+    /// Beyond `steps`, a run stops on the way down, at the learning rate that step of the
+    /// longer schedule has, and `--steps` up to it continues along the same curve.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decay_steps: Option<usize>,
     /// Clip the gradients' global norm to this.
     pub grad_clip_norm: f64,
 }
@@ -209,6 +214,9 @@ impl TrainConfig {
                 "optimizer.final_lr_fraction: {} (accepted: [0, 1])",
                 o.final_lr_fraction
             ));
+        }
+        if o.decay_steps == Some(0) {
+            problems.push("optimizer.decay_steps: 0 (accepted: an integer >= 1, or absent)".into());
         }
         for (name, value) in [
             ("steps", self.steps),

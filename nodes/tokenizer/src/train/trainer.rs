@@ -423,7 +423,7 @@ impl Trainer {
         let lr = learning_rate(
             o.lr,
             o.warmup_steps,
-            self.config.steps,
+            o.decay_steps.unwrap_or(self.config.steps),
             o.final_lr_fraction,
             self.step,
         );
