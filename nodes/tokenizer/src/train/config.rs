@@ -21,7 +21,8 @@ pub struct OptimizerConfig {
     pub final_lr_fraction: f64,
     /// The step at which the cosine decay reaches its floor; absent: `steps`, the run's end.
     /// Beyond `steps`, a run stops on the way down, at the learning rate that step of the
-    /// longer schedule has, and `--steps` up to it continues along the same curve.
+    /// longer schedule has. (`bevworld train tokenizer --steps N` sets it aside: N steps that
+    /// decay over N.)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub decay_steps: Option<usize>,
     /// Clip the gradients' global norm to this.
