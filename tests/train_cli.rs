@@ -77,7 +77,14 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
         .skip(1)
         .map(|l| l.split(',').nth(1).unwrap_or(""))
         .collect();
-    assert_eq!(phases, ["train", "train", "train", "val"], "{csv}");
+    // The committed config ships the weights' moving average: the last iterate is scored
+    // first, then the average, whose row is the run's last.
+    assert_eq!(
+        phases,
+        ["train", "train", "train", "val_iterate", "val"],
+        "{csv}"
+    );
+    assert!(run.join("checkpoints/step-0000003/ema.bpk").is_file());
     let val_row: Vec<&str> = csv.lines().last().expect("row").split(',').collect();
     let psnr: f64 = val_row[10].parse().expect("psnr");
     assert!(psnr > 5.0 && psnr < 60.0, "{psnr}");
@@ -112,7 +119,11 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
         .skip(1)
         .map(|l| l.split(',').next().unwrap_or(""))
         .collect();
-    assert_eq!(steps, ["1", "2", "3", "3", "4", "5", "5"], "{csv}");
+    assert_eq!(
+        steps,
+        ["1", "2", "3", "3", "3", "4", "5", "5", "5"],
+        "{csv}"
+    );
 
     // The trained weights run the reconstruction graph.
     let weights = run.join("tokenizer.bpk");
@@ -200,8 +211,15 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         "10",
         "--lidar-draw",
         "by_range",
+        "--ema-decay",
+        "off",
     ]));
     assert_eq!(first.status.code(), Some(1), "{}", text(&first));
+    // `off` ships the last iterate: no moving average is recorded, validated or checkpointed.
+    let recorded = std::fs::read_to_string(run.join("train.yaml")).expect("train config");
+    assert!(!recorded.contains("ema_decay"), "{recorded}");
+    assert!(run.join("checkpoints/step-0000002/model.bpk").is_file());
+    assert!(!run.join("checkpoints/step-0000002/ema.bpk").exists());
     assert!(
         text(&first).contains("target missed: PSNR ≥ 10 dB required, none measured"),
         "{}",
@@ -218,6 +236,16 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         .expect("the run's model config reads back");
     assert_eq!(model.modalities, [bevworld_tokenizer::Modality::Lidar]);
 
+    // Resuming it with the committed config's moving average is refused: the run has none.
+    let averaged = bevworld_owned(&args(&["--resume", "--until", "3"]));
+    assert_eq!(averaged.status.code(), Some(1));
+    assert!(
+        text(&averaged).contains("without a moving average")
+            && text(&averaged).contains("--ema-decay off"),
+        "{}",
+        text(&averaged)
+    );
+
     // Resumed without --modalities, the run stays L→L; a loose Chamfer bound passes.
     let second = bevworld_owned(&args(&[
         "--resume",
@@ -227,6 +255,8 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         "1e9",
         "--lidar-draw",
         "by_range",
+        "--ema-decay",
+        "off",
     ]));
     assert!(second.status.success(), "{}", text(&second));
     let last = rows().pop().expect("row");
@@ -243,6 +273,25 @@ fn an_ablation_run_stops_on_its_schedule_keeps_its_modality_and_checks_targets()
         "{}",
         text(&switched)
     );
+
+    for (value, said) in [
+        (
+            "1.5",
+            "--ema-decay: ema_decay: 1.5 (accepted: a number in (0, 1)",
+        ),
+        ("fast", "--ema-decay: 'fast' is neither a number nor 'off'"),
+    ] {
+        let refused = bevworld_owned(&train_args(
+            &dir.path().join("refused"),
+            &data,
+            &data,
+            "10",
+            &["--ema-decay", value],
+        ));
+        assert_eq!(refused.status.code(), Some(1));
+        assert!(text(&refused).contains(said), "{}", text(&refused));
+        assert!(!dir.path().join("refused").exists());
+    }
 
     let bad = bevworld_owned(&args(&["--modalities", "radar"]));
     assert_eq!(bad.status.code(), Some(1));

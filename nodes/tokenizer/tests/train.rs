@@ -66,6 +66,8 @@ fn fixed_batch_trainer(lr: f64) -> Trainer {
     config.rays.cameras_per_step = 6;
     config.rays.lidar_rays = usize::MAX;
     config.steps = 1000;
+    // The last iterate is validated: these tests are about what the steps themselves learn.
+    config.ema_decay = None;
     let one = vec![frames()[0].clone()];
     trainer(config, model, one.clone())
 }
@@ -124,10 +126,13 @@ fn module_values<M: Module>(module: &M) -> Vec<f32> {
     collect.0
 }
 
-/// The tokenizer's and the discriminator's values.
+/// The tokenizer's, the discriminator's and the weight average's values.
 fn values(trainer: &Trainer) -> Vec<f32> {
     let mut all = module_values(trainer.model());
     all.extend(module_values(trainer.discriminator()));
+    if let Some(average) = trainer.weight_average() {
+        all.extend(module_values(average));
+    }
     all
 }
 
@@ -193,6 +198,8 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     let frames = frames().clone();
     let dir = tempfile::tempdir().expect("tempdir");
 
+    // The committed config keeps a moving average of the weights; it resumes too.
+    assert!(config.ema_decay.is_some());
     let mut straight = trainer(config.clone(), model.clone(), frames.clone());
     // Both runs start from the same parameters: the second loads the first's step-0 state
     // (initialisation draws from a device RNG that parallel tests share).
@@ -268,6 +275,7 @@ fn bad_training_configs_name_every_field() {
     config.loss.lidar_termination = -0.5;
     config.loss.rgb_l2 = f64::INFINITY;
     config.optimizer.decay_steps = Some(0);
+    config.ema_decay = Some(1.0);
     let problems = config.problems().join("\n");
     for field in [
         "optimizer.lr",
@@ -279,6 +287,7 @@ fn bad_training_configs_name_every_field() {
         "loss.lidar_termination",
         "loss.rgb_l2",
         "optimizer.decay_steps",
+        "ema_decay",
     ] {
         assert!(
             problems.contains(field),
@@ -884,4 +893,84 @@ fn with_escape_at_far_training_draws_only_returns_inside_the_voxel_box() {
     assert!((0..boxed.lidar.len()).all(|i| in_box(&boxed, i)));
     // Validation and the graph still render every ray of the sweep.
     assert_eq!(boxed.rays.lidar.len(), plain.rays.lidar.len());
+}
+
+#[test]
+fn the_weight_average_follows_the_warmed_up_decay() {
+    use bevworld_tokenizer::train::ema::{effective_decay, update};
+    use burn::module::ModuleMapper;
+    use burn::nn::LinearConfig;
+
+    // d = min(decay, (1 + t) / (10 + t)): 2/11 after step 1, 0.9 from step 80 on.
+    assert!((effective_decay(0.9, 1) - 2.0 / 11.0).abs() < 1e-12);
+    assert!((effective_decay(0.9, 80) - 81.0 / 90.0).abs() < 1e-12);
+    assert_eq!(effective_decay(0.9, 1000), 0.9);
+
+    struct Fill(f32);
+    impl ModuleMapper for Fill {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            let (id, tensor, mapper) = param.consume();
+            Param::from_mapped_value(id, tensor.zeros_like().add_scalar(self.0), mapper)
+        }
+    }
+    let device = Device::flex();
+    let linear = LinearConfig::new(3, 2).init(&device);
+    let average = linear.clone().map(&mut Fill(1.0));
+    let model = linear.map(&mut Fill(3.0));
+    // Step 1: 2/11 · 1 + 9/11 · 3 = 29/11; step 1000: 0.9 · 1 + 0.1 · 3 = 1.2.
+    for (step, expected) in [(1, 29.0 / 11.0), (1000, 1.2)] {
+        let moved = update(average.clone(), &model, 0.9, step).expect("same module");
+        let values = module_values(&moved);
+        assert_eq!(values.len(), 3 * 2 + 2);
+        for v in values {
+            assert!((f64::from(v) - expected).abs() < 1e-6, "step {step}: {v}");
+        }
+    }
+    // Another module's parameters are refused, not blended.
+    let other = LinearConfig::new(2, 2).init(&device);
+    let error = update(average, &other, 0.9, 1).expect_err("different shapes");
+    assert!(error.to_string().contains("differ in"), "{error}");
+}
+
+#[test]
+fn a_run_with_a_weight_average_ships_and_validates_it() {
+    let (mut config, model) = configs();
+    config.ema_decay = Some(0.5);
+    config.rays.lidar_rays = 256;
+    config.rays.cameras_per_step = 2;
+    config.optimizer.warmup_steps = 0;
+    let mut run = trainer(config.clone(), model.clone(), frames().clone());
+    for _ in 0..2 {
+        run.train_step().expect("step");
+    }
+    let average = module_values(run.weight_average().expect("kept"));
+    let iterate = module_values(run.model());
+    assert_eq!(average.len(), iterate.len());
+    assert!(average != iterate, "the average is the last iterate");
+    // The shipped file holds the average, and validation scores it.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("tokenizer.bpk");
+    run.save_weights(&path).expect("weights");
+    let shipped = bevworld_tokenizer::load_weights(&model, &path, &Device::flex()).expect("load");
+    assert_eq!(module_values(&shipped), average);
+    let (scored, iterate_scored) = (
+        run.validate(),
+        run.validate_iterate().expect("an average is kept"),
+    );
+    assert_ne!(scored, iterate_scored);
+
+    // A checkpoint without the average cannot resume a run that keeps one.
+    let saved = run.save_checkpoint(dir.path()).expect("checkpoint");
+    std::fs::remove_file(saved.join("ema.bpk")).expect("the checkpoint holds the average");
+    let message = match trainer(config.clone(), model.clone(), frames().clone()).resume(dir.path())
+    {
+        Err(error) => error.to_string(),
+        Ok(_) => panic!("a checkpoint without its weight average was accepted"),
+    };
+    assert!(message.contains("ema.bpk"), "{message}");
+
+    // Without `ema_decay` the last iterate is shipped and scored once.
+    config.ema_decay = None;
+    let plain = trainer(config, model, frames().clone());
+    assert!(plain.weight_average().is_none() && plain.validate_iterate().is_none());
 }

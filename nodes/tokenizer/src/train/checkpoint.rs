@@ -1,5 +1,6 @@
 //! Checkpoints: `RUN/checkpoints/step-NNNNNNN/` holds the model and the patch discriminator
-//! (burnpack), both optimisers' states (burnpack) and `state.json` (step, RNG state). A checkpoint is written into a temporary
+//! (burnpack), both optimisers' states (burnpack), the parameters' moving average when the run
+//! keeps one (`ema.bpk`) and `state.json` (step, RNG state). A checkpoint is written into a temporary
 //! folder and renamed into place, and `RUN/checkpoints/latest` names the newest complete one,
 //! replaced atomically, so a crash at any instant leaves the last good checkpoint loadable.
 
@@ -49,6 +50,10 @@ impl CheckpointFiles {
     }
     pub fn discriminator_optimizer(&self) -> PathBuf {
         self.dir.join("discriminator_optimizer.bpk")
+    }
+    /// The parameters' moving average, when the run keeps one (`ema_decay`).
+    pub fn weight_average(&self) -> PathBuf {
+        self.dir.join("ema.bpk")
     }
     pub fn state(&self) -> PathBuf {
         self.dir.join("state.json")

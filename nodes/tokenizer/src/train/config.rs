@@ -131,6 +131,11 @@ pub struct TrainConfig {
     pub frames_per_step: usize,
     pub seed: u64,
     pub optimizer: OptimizerConfig,
+    /// An exponential moving average of the parameters with this decay per step (after a
+    /// warm-up, `train::ema`): the weights validated, checkpointed beside the iterate, and
+    /// shipped. Absent: the last iterate is shipped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ema_decay: Option<f64>,
     pub rays: RayConfig,
     pub loss: LossWeights,
     pub checkpoint_every: usize,
@@ -214,6 +219,13 @@ impl TrainConfig {
             problems.push(format!(
                 "optimizer.final_lr_fraction: {} (accepted: [0, 1])",
                 o.final_lr_fraction
+            ));
+        }
+        if let Some(decay) = self.ema_decay
+            && !(decay > 0.0 && decay < 1.0)
+        {
+            problems.push(format!(
+                "ema_decay: {decay} (accepted: a number in (0, 1), or absent)"
             ));
         }
         if o.decay_steps == Some(0) {

@@ -7,6 +7,7 @@ pub mod config;
 pub mod data;
 pub mod discriminator;
 pub mod distortion;
+pub mod ema;
 pub mod glyphs;
 pub mod losses;
 pub mod metrics_log;

@@ -26,6 +26,7 @@ use crate::train::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
 };
 use crate::train::distortion::distortion;
+use crate::train::ema::{self, MismatchedModules};
 use crate::train::losses::{l1, mse};
 use crate::train::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG16};
 use crate::train::replica::replica;
@@ -106,6 +107,8 @@ pub enum TrainError {
     NoFrames,
     #[error("a training worker thread panicked; the step was not applied")]
     WorkerPanicked,
+    #[error(transparent)]
+    WeightAverage(#[from] MismatchedModules),
 }
 
 /// What one step did.
@@ -150,6 +153,8 @@ pub struct Trainer {
     pub config: TrainConfig,
     pub model_config: TokenizerConfig,
     model: Tokenizer,
+    /// The parameters' moving average (`ema_decay`), on the inner device: the shipped weights.
+    weight_average: Option<Tokenizer>,
     optimizer: burn::optim::ModuleOptimizer,
     discriminator: PatchDiscriminator,
     perceptual: Option<PerceptualLoss>,
@@ -256,7 +261,9 @@ impl Trainer {
             (_, false) => None,
         };
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let weight_average = config.ema_decay.map(|_| model.valid());
         Ok(Self {
+            weight_average,
             optimizer: Self::optimizer(&config),
             discriminator_optimizer: Self::optimizer(&config),
             discriminator,
@@ -306,6 +313,14 @@ impl Trainer {
             .map_err(|e| {
                 checkpoint::io_error(&files.discriminator_optimizer(), format!("{e:?}"))
             })?;
+        if self.config.ema_decay.is_some() {
+            let inner = self.device.clone().inner();
+            self.weight_average = Some(load_weights(
+                &self.model_config,
+                &files.weight_average(),
+                &inner,
+            )?);
+        }
         self.step = state.step;
         self.rng = SplitMix64 {
             state: state.rng_state,
@@ -317,8 +332,22 @@ impl Trainer {
         self.step
     }
 
+    /// The last iterate, on the autodiff device.
     pub fn model(&self) -> &Tokenizer {
         &self.model
+    }
+
+    /// The parameters' moving average, when the run keeps one (`ema_decay`).
+    pub fn weight_average(&self) -> Option<&Tokenizer> {
+        self.weight_average.as_ref()
+    }
+
+    /// The weights the run ships and validates: the moving average when kept, else the last
+    /// iterate; on the inner device.
+    pub fn shipped_model(&self) -> Tokenizer {
+        self.weight_average
+            .clone()
+            .unwrap_or_else(|| self.model.valid())
     }
 
     pub fn is_done(&self) -> bool {
@@ -428,6 +457,9 @@ impl Trainer {
             self.step,
         );
         self.model = self.optimizer.step(lr, self.model.clone(), grads);
+        if let (Some(decay), Some(average)) = (self.config.ema_decay, self.weight_average.take()) {
+            self.weight_average = Some(ema::update(average, &self.model, decay, self.step + 1)?);
+        }
 
         // The discriminator learns from the same images, the renders detached from the tokenizer.
         let loss_discriminator = if gan && !images.is_empty() {
@@ -482,14 +514,25 @@ impl Trainer {
         Ok(d_value)
     }
 
-    /// PSNR, SSIM and Chamfer on the first `validation_frames` held-out frames, rendering every
-    /// camera ray and every LiDAR ray of the sweep; the frames are spread over the worker
-    /// threads. The rays whose return lies beyond the far plane are rendered too, as the
+    /// PSNR, SSIM and Chamfer of the shipped weights (`shipped_model`) on the first
+    /// `validation_frames` held-out frames, rendering every camera ray and every LiDAR ray of
+    /// the sweep; the frames are spread over the worker threads. The rays whose return lies beyond the far plane are rendered too, as the
     /// `reconstruct` graph renders them and as 4D-Occ's protocol renders every ray with a
     /// return: a ray the field ends short puts a point inside the ROI, and the score must
     /// count it.
     pub fn validate(&self) -> ValidationReport {
-        let model = self.model.valid();
+        self.validate_model(&self.shipped_model())
+    }
+
+    /// The same scores of the last iterate, when the run ships a moving average instead: what
+    /// the average adds.
+    pub fn validate_iterate(&self) -> Option<ValidationReport> {
+        self.weight_average
+            .is_some()
+            .then(|| self.validate_model(&self.model.valid()))
+    }
+
+    fn validate_model(&self, model: &Tokenizer) -> ValidationReport {
         let device = self.device.clone().inner();
         let frames: Vec<&TrainingFrame> = self
             .val
@@ -506,7 +549,7 @@ impl Trainer {
             || (),
             |_, frame| {
                 let latent = model.encode(frame.encoder.to_input(&device)).latent;
-                let scene = VoxelScene::new(&model, &self.model_config, model.voxels(latent));
+                let scene = VoxelScene::new(model, &self.model_config, model.voxels(latent));
                 let camera = cameras.then(|| camera_scores(&scene, frame));
                 let chamfer = lidar.then(|| {
                     let sweep = &frame.rays.lidar;
@@ -546,6 +589,9 @@ impl Trainer {
         // `valid()`: the weights without the autodiff wrapper (a module with running
         // statistics would also fold its pending update in here).
         save_weights(&self.model.valid(), &staged.model())?;
+        if let Some(average) = &self.weight_average {
+            save_weights(average, &staged.weight_average())?;
+        }
         save_module(&self.discriminator.valid(), &staged.discriminator())?;
         self.discriminator_optimizer
             .save(staged.discriminator_optimizer())
@@ -572,9 +618,9 @@ impl Trainer {
         &self.discriminator
     }
 
-    /// The trained weights alone, for inference (`weights:` in the graphs).
+    /// The shipped weights alone (`shipped_model`), for inference (`weights:` in the graphs).
     pub fn save_weights(&self, path: &Path) -> Result<(), TrainError> {
-        Ok(save_weights(&self.model.valid(), path)?)
+        Ok(save_weights(&self.shipped_model(), path)?)
     }
 }
 
