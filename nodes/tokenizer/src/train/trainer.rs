@@ -516,8 +516,8 @@ impl Trainer {
 
     /// PSNR, SSIM and Chamfer of the shipped weights (`shipped_model`) on the first
     /// `validation_frames` held-out frames, rendering every camera ray and every LiDAR ray of
-    /// the sweep; the frames are spread over the worker threads. The rays whose return lies beyond the far plane are rendered too, as the
-    /// `reconstruct` graph renders them and as 4D-Occ's protocol renders every ray with a
+    /// the sweep; the frames are spread over the worker threads. The rays whose return lies
+    /// beyond the far plane are rendered too, as the `reconstruct` graph renders them and as 4D-Occ's protocol renders every ray with a
     /// return: a ray the field ends short puts a point inside the ROI, and the score must
     /// count it.
     pub fn validate(&self) -> ValidationReport {
