@@ -436,6 +436,33 @@ fn the_lidar_termination_weight_is_checked_recorded_and_logged() {
     );
 }
 
+#[test]
+fn the_peak_learning_rate_flag_is_checked_recorded_and_followed() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    synth(&data, "4");
+    let args = |run: &Path, extra: &[&str]| train_args(run, &data, &data, "2", extra);
+
+    let run = dir.path().join("refused");
+    let bad = bevworld_owned(&args(&run, &["--lr=-1"]));
+    assert_refused_before_writing(&bad, &run, "--lr: optimizer.lr: -1");
+
+    // The committed config warms up over 100 steps: step 1 trains at a hundredth of the peak,
+    // 1.5e-5 for the config's 1.5e-3 and 2e-5 for `--lr 2e-3`.
+    for (extra, peak, first) in [
+        (&[][..], 1.5e-3, "0.000015"),
+        (&["--lr", "2e-3"][..], 2e-3, "0.000020"),
+    ] {
+        let run = dir.path().join(format!("run-{peak}"));
+        let good = bevworld_owned(&args(&run, extra));
+        assert!(good.status.success(), "{}", text(&good));
+        assert_eq!(recorded_value(&run, "lr"), Some(peak));
+        let rows = training_rows(&run);
+        assert_eq!(rows[0]["step"], "1");
+        assert_eq!(rows[0]["lr"], first);
+    }
+}
+
 /// The command failed with status 1, its output names `message`, and it wrote no run folder.
 fn assert_refused_before_writing(bad: &std::process::Output, run: &Path, message: &str) {
     assert_eq!(bad.status.code(), Some(1), "{}", text(bad));
