@@ -117,6 +117,15 @@ pub struct TrainTokenizerArgs {
     pub log_every: usize,
 }
 
+/// The config's own check of the field `key` names, reported under the flag `--{flag}` that set
+/// the value.
+fn refuse_config_problem(config: &TrainConfig, flag: &str, key: &str) -> Result<()> {
+    match config.problems().into_iter().find(|p| p.starts_with(key)) {
+        Some(problem) => bail!("--{flag}: {problem}"),
+        None => Ok(()),
+    }
+}
+
 pub fn run(command: &TrainCommand) -> Result<ExitCode> {
     match command {
         TrainCommand::Tokenizer(args) => tokenizer(args),
@@ -173,23 +182,11 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
                 anyhow::anyhow!("--ema-decay: '{number}' is neither a number nor 'off'")
             })?),
         };
-        if let Some(problem) = config
-            .problems()
-            .iter()
-            .find(|p| p.starts_with("ema_decay:"))
-        {
-            bail!("--ema-decay: {problem}");
-        }
+        refuse_config_problem(&config, "ema-decay", "ema_decay:")?;
     }
     if let Some(lr) = args.lr {
         config.optimizer.lr = lr;
-        if let Some(problem) = config
-            .problems()
-            .iter()
-            .find(|p| p.starts_with("optimizer.lr:"))
-        {
-            bail!("--lr: {problem}");
-        }
+        refuse_config_problem(&config, "lr", "optimizer.lr:")?;
     }
     if let Some(text) = &args.lidar_draw {
         config.rays.lidar_draw = text
@@ -210,11 +207,8 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
     for (flag, weight, field) in weight_flags {
         if let Some(weight) = weight {
             *field(&mut config.loss) = weight;
-            // The config's own check, reported under the flag that set the value.
             let key = format!("loss.{}:", flag.replace('-', "_"));
-            if let Some(problem) = config.problems().iter().find(|p| p.starts_with(&key)) {
-                bail!("--{flag}: {problem}");
-            }
+            refuse_config_problem(&config, flag, &key)?;
         }
     }
     if let Some(vgg) = &args.vgg {
