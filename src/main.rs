@@ -5,6 +5,7 @@ mod registry;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, Result, bail};
@@ -124,9 +125,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             overwrite,
         } => {
             if let Some(shard) = shard {
-                bevworld_sensors::source::parse_shard(&shard)
-                    .map_err(anyhow::Error::msg)
-                    .context("--shard")?;
+                bevworld_sensors::source::parse_shard(&shard).context("--shard")?;
                 set.push(format!("source.shard={shard}"));
             }
             if overwrite {
@@ -139,21 +138,21 @@ fn dispatch(command: Command) -> Result<ExitCode> {
             run(&graph, &set, metrics.as_deref(), !no_progress)
         }
         Command::Check { graph, set } => {
-            let Some(resolved) = load(&graph, &set)? else {
+            let Some(validated) = load(&graph, &set)? else {
                 return Ok(ExitCode::from(2));
             };
-            print!("{}", resolved.describe());
+            print!("{}", validated.spec.describe());
             println!("ok");
             Ok(ExitCode::SUCCESS)
         }
         Command::Graph { graph, dot, set } => {
-            let Some(resolved) = load(&graph, &set)? else {
+            let Some(validated) = load(&graph, &set)? else {
                 return Ok(ExitCode::from(2));
             };
             if dot {
-                print!("{}", bevworld_graph::dot::to_dot(&resolved));
+                print!("{}", bevworld_graph::dot::to_dot(&validated.spec));
             } else {
-                print!("{}", resolved.describe());
+                print!("{}", validated.spec.describe());
             }
             Ok(ExitCode::SUCCESS)
         }
@@ -195,6 +194,7 @@ fn export_nodes(path: &Path) -> Result<Vec<String>> {
         bail!("{} has validation problems (see above)", path.display())
     };
     Ok(graph
+        .spec
         .nodes
         .iter()
         .filter(|n| n.kind.name == "export_features")
@@ -202,11 +202,12 @@ fn export_nodes(path: &Path) -> Result<Vec<String>> {
         .collect())
 }
 
-/// Validates a graph; prints every problem and returns None when there are any.
-fn load(path: &Path, set: &[String]) -> Result<Option<bevworld_graph::ResolvedGraph>> {
+/// Validates a graph (building nothing); prints every problem and returns None when there are
+/// any.
+fn load(path: &Path, set: &[String]) -> Result<Option<bevworld_graph::ValidatedGraph>> {
     let overrides = set
         .iter()
-        .map(|text| Override::parse(text).map_err(anyhow::Error::msg))
+        .map(|text| Override::parse(text).map_err(anyhow::Error::from))
         .collect::<Result<Vec<_>>>()
         .context("bad --set")?;
     match bevworld_graph::load(path, &registry::registry(), &overrides) {
@@ -219,8 +220,17 @@ fn load(path: &Path, set: &[String]) -> Result<Option<bevworld_graph::ResolvedGr
 }
 
 fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> Result<ExitCode> {
-    let Some(graph) = load(path, set)? else {
+    let Some(validated) = load(path, set)? else {
         return Ok(ExitCode::from(2));
+    };
+    let show_progress = progress && validated.spec.settings.progress;
+    let name = validated.spec.name.clone();
+    let graph = match validated.build() {
+        Ok(graph) => graph,
+        Err(diagnostics) => {
+            eprintln!("{diagnostics}");
+            return Ok(ExitCode::from(2));
+        }
     };
     let stop = StopHandle::new();
     let handler_stop = stop.clone();
@@ -235,7 +245,9 @@ fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> R
     })
     .context("installing the Ctrl-C handler")?;
 
-    let outcome = bevworld_graph::run(graph, RunOptions { stop, progress });
+    let observer = show_progress
+        .then(|| Arc::new(ProgressBar::new(&name)) as Arc<dyn bevworld_graph::RunObserver>);
+    let outcome = bevworld_graph::run(graph, RunOptions { stop, observer });
     print!("{}", outcome.report.table());
     if let Some(file) = metrics {
         if let Some(parent) = file.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -249,4 +261,36 @@ fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> R
         bail!(error);
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The run's progress bar: items released by the sources against the totals they announce,
+/// shown when stderr is a terminal.
+struct ProgressBar(indicatif::ProgressBar);
+
+impl ProgressBar {
+    fn new(graph: &str) -> Self {
+        let bar = indicatif::ProgressBar::new(0);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} {msg} [{bar:30}] {pos}/{len} items, {per_sec}, eta {eta}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar.set_message(graph.to_string());
+        Self(bar)
+    }
+}
+
+impl bevworld_graph::RunObserver for ProgressBar {
+    fn expect_items(&self, items: u64) {
+        self.0.inc_length(items);
+    }
+
+    fn item_released(&self) {
+        self.0.inc(1);
+    }
+
+    fn finished(&self) {
+        self.0.finish_and_clear();
+    }
 }

@@ -11,9 +11,8 @@ fn bevworld(args: &[&str]) -> Output {
         .unwrap()
 }
 
-fn kitti() -> PathBuf {
-    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
-        .join("../shared/data/kitti-odometry-00")
+fn kitti() -> Option<PathBuf> {
+    bevworld_sensors::real_dataset("kitti-odometry-00")
 }
 
 fn json(output: &Output) -> serde_json::Value {
@@ -27,7 +26,10 @@ fn json(output: &Output) -> serde_json::Value {
 
 #[test]
 fn chamfer_of_a_scan_with_itself_is_zero_and_counts_follow_the_roi() {
-    let scan = kitti().join("velodyne/000000.bin");
+    let Some(kitti) = kitti() else {
+        return;
+    };
+    let scan = kitti.clone().join("velodyne/000000.bin");
     let s = scan.to_str().unwrap();
     let same = json(&bevworld(&[
         "eval", "chamfer", "--pred", s, "--gt", s, "--json",
@@ -78,11 +80,14 @@ fn chamfer_reads_ply_and_agrees_across_formats() {
 
 #[test]
 fn ego_warp_beats_copy_last_on_real_kitti() {
+    let Some(kitti) = kitti() else {
+        return;
+    };
     let rows = json(&bevworld(&[
         "eval",
         "baselines",
         "--data",
-        kitti().to_str().unwrap(),
+        kitti.clone().to_str().unwrap(),
         "--format",
         "kitti",
         "--horizons",
@@ -113,6 +118,9 @@ fn ego_warp_beats_copy_last_on_real_kitti() {
 
 #[test]
 fn bad_input_is_a_clear_error() {
+    let Some(kitti) = kitti() else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let odd = dir.path().join("cloud.xyz");
     std::fs::write(&odd, b"1 2 3").unwrap();
@@ -144,7 +152,7 @@ fn bad_input_is_a_clear_error() {
         "eval",
         "baselines",
         "--data",
-        kitti().to_str().unwrap(),
+        kitti.clone().to_str().unwrap(),
         "--format",
         "kitti",
         "--horizons",
@@ -153,10 +161,9 @@ fn bad_input_is_a_clear_error() {
     assert!(
         String::from_utf8_lossy(&output.stderr).contains("--horizons must be frame counts >= 1")
     );
-    let nuscenes = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../shared/data/nuscenes-sample");
+    let Some(nuscenes) = bevworld_sensors::real_dataset("nuscenes-sample") else {
+        return;
+    };
     let output = bevworld(&[
         "eval",
         "baselines",

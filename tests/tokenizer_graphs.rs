@@ -127,13 +127,12 @@ fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
 
 #[test]
 fn on_the_real_keyframe_the_rendered_sweep_leaves_out_the_returns_off_the_car() {
+    let Some(nuscenes) = bevworld_sensors::real_dataset("nuscenes-sample") else {
+        return;
+    };
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("out");
-    let report = run_reconstruct(
-        &common::repo().join("../shared/data/nuscenes-sample"),
-        &out,
-        &[],
-    );
+    let report = run_reconstruct(&nuscenes, &out, &[]);
     let frame = out.join("000000");
     // 8,526 of the sweep's 34,688 returns lie in 4D-Occ's ego box: no ray is cast for them.
     assert_eq!(ply_vertices(&frame.join("LIDAR_TOP.ply")), 34_688);
@@ -287,8 +286,8 @@ fn a_lidar_only_model_refuses_to_render_the_cameras() {
 
 #[test]
 fn tokenizer_stats_matches_the_latents_it_summarises() {
-    use bevworld_tokenizer::latent::{LatentStatsFile, stats_path_for};
     use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights, save_weights};
+    use bevworld_types::{LatentStatsFile, stats_path_for};
 
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
@@ -300,7 +299,7 @@ fn tokenizer_stats_matches_the_latents_it_summarises() {
     let config = TokenizerConfig::from_yaml_file(&config_path).expect("config");
     let device = burn::prelude::Device::flex();
     let weights = dir.path().join("tiny.bpk");
-    save_weights(&config.init(&device), &weights).expect("save");
+    save_weights(&config.init_seeded(0, &device), &weights).expect("save");
 
     let output = bevworld(&[
         "tokenizer",

@@ -503,7 +503,7 @@ fn steps_sets_the_decay_horizon_where_until_keeps_the_configs() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
     synth(&data, "4");
-    let (committed, _) = bevworld_tokenizer::train::TrainConfig::from_yaml_file(
+    let (committed, _) = bevworld_tokenizer_train::TrainConfig::from_yaml_file(
         &common::repo().join("configs/models/train-tokenizer-tiny.yaml"),
     )
     .expect("the committed training config");

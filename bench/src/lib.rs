@@ -1,9 +1,8 @@
-//! Shared benchmark helpers: timing summaries, tables, SVG plots and result files.
+//! Shared benchmark helpers: timing summaries, tables and result files; plots are
+//! `bevworld_plot`'s.
 //!
 //! Benchmarks print a table, and write `bench/results/<name>.md`, `.json` and `.svg`. Timings
 //! live here, never in test assertions.
-
-pub mod plot;
 
 /// The allocator the `bevworld` binary runs with, so that benchmarks time what users run
 /// (see `src/main.rs`). A library's global allocator applies to every binary that links it.
@@ -63,13 +62,13 @@ pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
 /// The tiny training config's held-out synthetic set under the repository `root`, made on
 /// first use.
 pub fn held_out_synthetic_set(root: &std::path::Path) -> PathBuf {
-    let (train, _) = bevworld_tokenizer::train::TrainConfig::from_yaml_file(
+    let (train, _) = bevworld_tokenizer_train::TrainConfig::from_yaml_file(
         &root.join("configs/models/train-tokenizer-tiny.yaml"),
     )
     .expect("training config");
     let mut set = train.data.val.clone();
     set.dir = root.join(&set.dir);
-    bevworld_tokenizer::train::data::ensure_synthetic(&set).expect("held-out synthetic set");
+    set.ensure().expect("held-out synthetic set");
     set.dir
 }
 

@@ -1,9 +1,9 @@
-//! Graphviz DOT output of a resolved graph.
+//! Graphviz DOT output of a validated graph.
 
 use crate::node::Role;
-use crate::validate::ResolvedGraph;
+use crate::validate::GraphSpec;
 
-pub fn to_dot(graph: &ResolvedGraph) -> String {
+pub fn to_dot(graph: &GraphSpec) -> String {
     let mut out = String::new();
     out.push_str(&format!(
         "digraph \"{}\" {{\n  rankdir=LR;\n  node [fontname=\"Helvetica\"];\n",

@@ -5,6 +5,9 @@
 //! ([`EdgePolicy`]). The runtime knows nothing about sensors or models: applications register
 //! node kinds in a [`Registry`].
 
+// Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
+#![cfg_attr(not(test), warn(clippy::unwrap_used))]
+
 pub mod align;
 pub mod diagnostic;
 pub mod dot;
@@ -26,23 +29,25 @@ pub use error::{NodeError, RunError};
 pub use message::{Header, Instant, Message};
 pub use metrics::{NodeReport, RunReport};
 pub use node::{Figures, Inputs, Node, Outputs, Role, Sink, Source, SourceInfo, Task};
-pub use pacing::Pacing;
+pub use pacing::{Pacing, PacingError};
 pub use policy::EdgePolicy;
 pub use port::{PortSpec, PortType};
 pub use registry::{KindSpec, NodeKind, ParamError, Registry};
-pub use runtime::{RunOptions, RunOutcome, StopHandle, run};
+pub use runtime::{RunObserver, RunOptions, RunOutcome, StopHandle, run};
 pub use schema::{OnError, SyncMode};
-pub use validate::{Override, ResolvedGraph, resolve};
+pub use validate::{
+    GraphSpec, NodeSpec, Override, OverrideError, ResolvedGraph, ValidatedGraph, resolve, validate,
+};
 
-/// Reads and validates a graph file.
+/// Reads and validates a graph file (nothing is built: `ValidatedGraph::build` does that).
 pub fn load(
     path: &std::path::Path,
     registry: &Registry,
     overrides: &[Override],
-) -> Result<ResolvedGraph, Diagnostics> {
+) -> Result<ValidatedGraph, Diagnostics> {
     let file = path.display().to_string();
     match std::fs::read_to_string(path) {
-        Ok(text) => resolve(&text, &file, registry, overrides),
+        Ok(text) => validate(&text, &file, registry, overrides),
         Err(error) => Err(Diagnostics(vec![Diagnostic {
             file,
             position: None,

@@ -5,6 +5,17 @@ use std::time::{Duration, Instant};
 
 use crate::schema::PacingDecl;
 
+/// A pacing declaration that cannot be used.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum PacingError {
+    #[error("pacing takes either speed or rate_hz, not both")]
+    Both,
+    #[error("pacing speed must be a finite number >= 0, got {0}")]
+    Speed(f64),
+    #[error("pacing rate_hz must be a finite number > 0, got {0}")]
+    Rate(f64),
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Pacing {
     /// As fast as downstream takes items.
@@ -16,17 +27,15 @@ pub enum Pacing {
 }
 
 impl Pacing {
-    pub fn from_decl(decl: &PacingDecl) -> Result<Self, String> {
+    pub fn from_decl(decl: &PacingDecl) -> Result<Self, PacingError> {
         match (decl.speed, decl.rate_hz) {
-            (Some(_), Some(_)) => Err("pacing takes either speed or rate_hz, not both".into()),
-            (Some(speed), None) if !(speed.is_finite() && speed >= 0.0) => Err(format!(
-                "pacing speed must be a finite number >= 0, got {speed}"
-            )),
+            (Some(_), Some(_)) => Err(PacingError::Both),
+            (Some(speed), None) if !(speed.is_finite() && speed >= 0.0) => {
+                Err(PacingError::Speed(speed))
+            }
             (Some(speed), None) if speed == 0.0 => Ok(Self::Unpaced),
             (Some(speed), None) => Ok(Self::Recorded { speed }),
-            (None, Some(rate)) if !(rate.is_finite() && rate > 0.0) => Err(format!(
-                "pacing rate_hz must be a finite number > 0, got {rate}"
-            )),
+            (None, Some(rate)) if !(rate.is_finite() && rate > 0.0) => Err(PacingError::Rate(rate)),
             (None, Some(rate_hz)) => Ok(Self::Fixed { rate_hz }),
             (None, None) => Ok(Self::Unpaced),
         }

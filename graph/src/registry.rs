@@ -36,12 +36,21 @@ impl ParamError {
     }
 }
 
-type Builder = dyn Fn(&serde_json::Value) -> Result<Built, ParamError> + Send + Sync;
+type Checker = dyn Fn(&serde_json::Value) -> Result<Checked, ParamError> + Send + Sync;
 
-/// A node built from its parameters, with the parameters as resolved (defaults filled in).
-pub struct Built {
-    pub node: Node,
+/// A node's parameters, typed and checked, with the node not yet built: validation (`bevworld
+/// check`) stops here, so it loads nothing, and `run` builds.
+pub struct Checked {
+    /// The parameters as resolved (defaults filled in).
     pub resolved_params: serde_json::Value,
+    build: Box<dyn FnOnce() -> Result<Node, ParamError> + Send>,
+}
+
+impl Checked {
+    /// Builds the node: opens what it needs (model weights, files).
+    pub fn build(self) -> Result<Node, ParamError> {
+        (self.build)()
+    }
 }
 
 /// One registered node kind.
@@ -54,12 +63,18 @@ pub struct NodeKind {
     pub outputs: Vec<PortSpec>,
     /// How several inputs are grouped unless the graph says otherwise.
     pub default_sync: SyncMode,
-    builder: Arc<Builder>,
+    checker: Arc<Checker>,
 }
 
 impl NodeKind {
-    pub fn build(&self, params: &serde_json::Value) -> Result<Built, ParamError> {
-        (self.builder)(params)
+    /// Types and checks `params` without building the node.
+    pub fn check(&self, params: &serde_json::Value) -> Result<Checked, ParamError> {
+        (self.checker)(params)
+    }
+
+    /// Checks `params` and builds the node at once, for code that makes one node by itself.
+    pub fn build(&self, params: &serde_json::Value) -> Result<Node, ParamError> {
+        self.check(params)?.build()
     }
 
     pub fn input(&self, name: &str) -> Option<(usize, &PortSpec)> {
@@ -140,32 +155,50 @@ impl Registry {
         Self::default()
     }
 
-    /// Registers a kind whose parameters deserialize into `P`. `P` should use
-    /// `#[serde(deny_unknown_fields)]` so a misspelt key is an error, not a silent default.
+    /// Registers a kind whose parameters deserialize into `P`, which the node is built from.
+    /// `P` should use `#[serde(deny_unknown_fields)]` so a misspelt key is an error, not a
+    /// silent default. Validation checks that the parameters deserialize; `build` runs only
+    /// when the graph runs.
     pub fn register<P, F>(&mut self, spec: KindSpec, build: F)
     where
-        P: DeserializeOwned + Serialize + 'static,
+        P: DeserializeOwned + Serialize + Send + 'static,
+        F: Fn(P) -> Result<Node, ParamError> + Send + Sync + 'static,
+    {
+        self.register_checked(spec, |_: &P| Ok(()), build);
+    }
+
+    /// As `register`, with `check` run at validation on the typed parameters: the problems a
+    /// user should hear of from `bevworld check`, found without opening anything heavy.
+    pub fn register_checked<P, C, F>(&mut self, spec: KindSpec, check: C, build: F)
+    where
+        P: DeserializeOwned + Serialize + Send + 'static,
+        C: Fn(&P) -> Result<(), ParamError> + Send + Sync + 'static,
         F: Fn(P) -> Result<Node, ParamError> + Send + Sync + 'static,
     {
         let role = spec.role;
-        let builder = move |raw: &serde_json::Value| -> Result<Built, ParamError> {
+        let build = Arc::new(build);
+        let checker = move |raw: &serde_json::Value| -> Result<Checked, ParamError> {
             let params: P = deserialize_params(raw)?;
+            check(&params)?;
             let resolved_params = serde_json::to_value(&params).unwrap_or(serde_json::Value::Null);
-            let node = build(params)?;
-            if node.role() != role {
-                return Err(ParamError {
-                    field: None,
-                    message: format!(
-                        "builder made a {} but the kind is a {}",
-                        node.role().as_str(),
-                        role.as_str()
-                    ),
-                    accepted: None,
-                });
-            }
-            Ok(Built {
-                node,
+            let build = Arc::clone(&build);
+            Ok(Checked {
                 resolved_params,
+                build: Box::new(move || {
+                    let node = build(params)?;
+                    if node.role() != role {
+                        return Err(ParamError {
+                            field: None,
+                            message: format!(
+                                "builder made a {} but the kind is a {}",
+                                node.role().as_str(),
+                                role.as_str()
+                            ),
+                            accepted: None,
+                        });
+                    }
+                    Ok(node)
+                }),
             })
         };
         self.kinds.insert(
@@ -177,7 +210,7 @@ impl Registry {
                 inputs: spec.inputs,
                 outputs: spec.outputs,
                 default_sync: spec.default_sync,
-                builder: Arc::new(builder),
+                checker: Arc::new(checker),
             },
         );
     }

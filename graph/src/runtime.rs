@@ -25,7 +25,7 @@ use crate::node::{Inputs, Node, Outputs, Sink, Source, Task};
 use crate::pacing::{Pacer, Pacing};
 use crate::policy::{EdgeCounters, EdgeSender};
 use crate::schema::{OnError, SyncMode};
-use crate::validate::ResolvedGraph;
+use crate::validate::{GraphSpec, ResolvedGraph};
 
 /// Stops a running graph from another thread (a Ctrl-C handler, a test).
 #[derive(Clone)]
@@ -76,12 +76,22 @@ impl StopHandle {
     }
 }
 
+/// Hears of a run's progress as it goes (the command line's progress bar); a run works
+/// without one. Called from the nodes' threads.
+pub trait RunObserver: Send + Sync {
+    /// A source announced `items` it will produce.
+    fn expect_items(&self, _items: u64) {}
+    /// A source released one item into the graph.
+    fn item_released(&self) {}
+    /// Every node has stopped.
+    fn finished(&self) {}
+}
+
 /// Options that are not part of the graph file.
 #[derive(Clone, Default)]
 pub struct RunOptions {
     pub stop: StopHandle,
-    /// Show the progress bar (also needs `settings.progress` and a terminal).
-    pub progress: bool,
+    pub observer: Option<Arc<dyn RunObserver>>,
 }
 
 /// A finished run: its metrics, and its error if it failed.
@@ -93,7 +103,7 @@ pub struct RunOutcome {
 struct Shared {
     stop: StopHandle,
     failures: Mutex<Vec<RunError>>,
-    progress: indicatif::ProgressBar,
+    observer: Option<Arc<dyn RunObserver>>,
 }
 
 impl Shared {
@@ -129,137 +139,180 @@ struct NodeThread {
 pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
     let started = Instant::now();
     let stop = options.stop.clone();
-    let progress = if options.progress && graph.settings.progress {
-        let bar = indicatif::ProgressBar::new(0);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{spinner} {msg} [{bar:30}] {pos}/{len} items, {per_sec}, eta {eta}",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        bar.set_message(graph.name.clone());
-        bar
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
     let shared = Arc::new(Shared {
         stop: stop.clone(),
         failures: Mutex::new(Vec::new()),
-        progress,
+        observer: options.observer,
     });
+    let ResolvedGraph { spec, nodes } = graph;
+    let wiring = Wiring::new(&spec, &stop);
+    let edge_counters = wiring.counters.clone();
+    let spawned = spawn_nodes(&spec, nodes, wiring, &shared);
+    let grace = Duration::from_millis(spec.settings.shutdown_grace_ms);
+    let (reports, hung) = await_nodes(spawned.done, spawned.pending, grace, &stop);
+    if let Some(observer) = &shared.observer {
+        observer.finished();
+    }
+    let failures = shared
+        .failures
+        .lock()
+        .map(|mut f| std::mem::take(&mut *f))
+        .unwrap_or_default();
+    report(
+        &spec,
+        Ending {
+            reports,
+            hung,
+            failures,
+            startup_error: spawned.startup_error,
+            draining: stop.is_draining(),
+            wall_seconds: started.elapsed().as_secs_f64(),
+        },
+        &edge_counters,
+    )
+}
 
-    // Channels, one per edge.
-    let node_count = graph.nodes.len();
-    let mut senders: Vec<Vec<Vec<EdgeSender>>> = graph
+/// One bounded channel per edge: each node's senders per output port and its receivers.
+struct Wiring {
+    /// `[node][output port]` → the edges leaving it.
+    senders: Vec<Vec<Vec<EdgeSender>>>,
+    /// `[node]` → (input port, receiver) per incoming edge.
+    receivers: Vec<Vec<(usize, Receiver<Message>)>>,
+    /// Per edge, in the graph's edge order.
+    counters: Vec<Arc<EdgeCounters>>,
+}
+
+impl Wiring {
+    fn new(spec: &GraphSpec, stop: &StopHandle) -> Self {
+        let mut senders: Vec<Vec<Vec<EdgeSender>>> = spec
+            .nodes
+            .iter()
+            .map(|n| n.kind.outputs.iter().map(|_| Vec::new()).collect())
+            .collect();
+        let mut receivers: Vec<Vec<(usize, Receiver<Message>)>> =
+            vec![Vec::new(); spec.nodes.len()];
+        let mut counters = Vec::new();
+        for edge in &spec.edges {
+            let (tx, rx) = bounded::<Message>(edge.capacity);
+            let edge_counters = Arc::new(EdgeCounters::default());
+            let evict = matches!(
+                edge.policy,
+                crate::policy::EdgePolicy::DropOldest | crate::policy::EdgePolicy::Latest
+            )
+            .then(|| rx.clone());
+            senders[edge.from_node][edge.from_port].push(EdgeSender {
+                tx,
+                evict,
+                counters: Arc::clone(&edge_counters),
+                abort: stop.abort_rx.clone(),
+            });
+            receivers[edge.to_node].push((edge.to_port, rx));
+            counters.push(edge_counters);
+        }
+        Self {
+            senders,
+            receivers,
+            counters,
+        }
+    }
+}
+
+/// The node threads, once started.
+struct Spawned {
+    /// Each thread sends its node's index and report when it ends.
+    done: Receiver<(usize, NodeReport)>,
+    /// Per node, its id while its thread runs (`None` once reported or never started).
+    pending: Vec<Option<String>>,
+    startup_error: Option<RunError>,
+}
+
+/// Starts one thread per node.
+fn spawn_nodes(
+    spec: &GraphSpec,
+    nodes: Vec<Node>,
+    wiring: Wiring,
+    shared: &Arc<Shared>,
+) -> Spawned {
+    let (done_tx, done_rx) = crossbeam_channel::unbounded::<(usize, NodeReport)>();
+    let mut pending: Vec<Option<String>> = Vec::with_capacity(nodes.len());
+    let mut startup_error = None;
+    for (index, (((declared, node), outputs), inputs)) in spec
         .nodes
         .iter()
-        .map(|n| n.kind.outputs.iter().map(|_| Vec::new()).collect())
-        .collect();
-    let mut receivers: Vec<Vec<(usize, Receiver<Message>)>> = vec![Vec::new(); node_count];
-    let mut edge_counters = Vec::new();
-    for edge in &graph.edges {
-        let (tx, rx) = bounded::<Message>(edge.capacity);
-        let counters = Arc::new(EdgeCounters::default());
-        let evict = matches!(
-            edge.policy,
-            crate::policy::EdgePolicy::DropOldest | crate::policy::EdgePolicy::Latest
-        )
-        .then(|| rx.clone());
-        senders[edge.from_node][edge.from_port].push(EdgeSender {
-            tx,
-            evict,
-            counters: Arc::clone(&counters),
-            abort: stop.abort_rx.clone(),
-        });
-        receivers[edge.to_node].push((edge.to_port, rx));
-        edge_counters.push(counters);
-    }
-
-    let node_ids: Vec<String> = graph.nodes.iter().map(|n| n.id.clone()).collect();
-    let edge_labels: Vec<(String, String)> =
-        graph.edges.iter().map(|e| graph.edge_label(e)).collect();
-    let inbound: Vec<Vec<usize>> = (0..node_count)
-        .map(|node| {
-            graph
-                .edges
-                .iter()
-                .enumerate()
-                .filter(|(_, e)| e.to_node == node)
-                .map(|(i, _)| i)
-                .collect()
-        })
-        .collect();
-
-    // One thread per node.
-    let (done_tx, done_rx) = crossbeam_channel::unbounded::<(usize, NodeReport)>();
-    let mut pending: Vec<Option<String>> = Vec::with_capacity(node_count);
-    let mut startup_error = None;
-    for (index, ((resolved, outputs), inputs)) in graph
-        .nodes
-        .into_iter()
-        .zip(senders)
-        .zip(receivers)
+        .zip(nodes)
+        .zip(wiring.senders)
+        .zip(wiring.receivers)
         .enumerate()
     {
         let output_ports: Arc<[&'static str]> =
-            resolved.kind.outputs.iter().map(|p| p.name).collect();
+            declared.kind.outputs.iter().map(|p| p.name).collect();
         let input_ports: Arc<[&'static str]> =
-            resolved.kind.inputs.iter().map(|p| p.name).collect();
-        let is_source = matches!(resolved.node, Node::Source(_));
+            declared.kind.inputs.iter().map(|p| p.name).collect();
+        let is_source = matches!(node, Node::Source(_));
         let thread = NodeThread {
             report: NodeReport::new(
-                &resolved.id,
-                resolved.kind.name,
-                resolved.kind.role.as_str(),
+                &declared.id,
+                declared.kind.name,
+                declared.kind.role.as_str(),
             ),
             who: Who {
-                id: resolved.id.clone(),
-                kind: resolved.kind.name,
-                on_error: resolved.on_error,
+                id: declared.id.clone(),
+                kind: declared.kind.name,
+                on_error: declared.on_error,
             },
-            pacing: resolved.pacing,
-            sync: resolved.sync,
-            align_tolerance_us: resolved.align_tolerance_us,
-            idle_spin: Duration::from_micros(graph.settings.idle_spin_us),
+            pacing: declared.pacing,
+            sync: declared.sync,
+            align_tolerance_us: declared.align_tolerance_us,
+            idle_spin: Duration::from_micros(spec.settings.idle_spin_us),
             inputs,
             input_ports,
             outputs: Outputs::new(output_ports, outputs, is_source),
         };
-        let node = resolved.node;
-        let shared = Arc::clone(&shared);
+        let for_thread = Arc::clone(shared);
         let done = done_tx.clone();
         let spawned = std::thread::Builder::new()
-            .name(format!("node:{}", resolved.id))
+            .name(format!("node:{}", declared.id))
             .spawn(move || {
                 let span = info_span!("node", id = %thread.who.id, kind = thread.who.kind);
                 let _entered = span.enter();
-                let report = run_node(thread, node, &shared);
+                let report = run_node(thread, node, &for_thread);
                 let _ = done.send((index, report));
             });
         match spawned {
-            Ok(_) => pending.push(Some(resolved.id)),
+            Ok(_) => pending.push(Some(declared.id.clone())),
             Err(error) => {
                 startup_error = Some(RunError::Startup(format!(
                     "spawning node '{}': {error}",
-                    resolved.id
+                    declared.id
                 )));
-                stop.abort();
+                shared.stop.abort();
                 pending.push(None);
             }
         }
     }
-    drop(done_tx);
+    Spawned {
+        done: done_rx,
+        pending,
+        startup_error,
+    }
+}
 
-    // Collect reports; after an abort, wait at most the grace period for the stragglers.
-    let grace = Duration::from_millis(graph.settings.shutdown_grace_ms);
-    let mut reports: Vec<Option<NodeReport>> = (0..node_count).map(|_| None).collect();
+/// Collects every node's report; after an abort, waits at most `grace` for the stragglers,
+/// and returns those still running as hung.
+fn await_nodes(
+    done: Receiver<(usize, NodeReport)>,
+    mut pending: Vec<Option<String>>,
+    grace: Duration,
+    stop: &StopHandle,
+) -> (Vec<Option<NodeReport>>, Vec<String>) {
+    let mut reports: Vec<Option<NodeReport>> = (0..pending.len()).map(|_| None).collect();
     let mut abort_seen: Option<Instant> = None;
     while pending.iter().any(Option::is_some) {
         let wait = match abort_seen {
             Some(at) => grace.saturating_sub(at.elapsed()),
             None => Duration::from_millis(50),
         };
-        match done_rx.recv_timeout(wait) {
+        match done.recv_timeout(wait) {
             Ok((index, report)) => {
                 pending[index] = None;
                 reports[index] = Some(report);
@@ -274,38 +327,60 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
             Err(RecvTimeoutError::Disconnected) => break,
         }
     }
-    shared.progress.finish_and_clear();
-    let hung: Vec<String> = pending.into_iter().flatten().collect();
+    let hung = pending.into_iter().flatten().collect();
+    (reports, hung)
+}
 
+/// How the node threads ended.
+struct Ending {
+    reports: Vec<Option<NodeReport>>,
+    hung: Vec<String>,
+    failures: Vec<RunError>,
+    startup_error: Option<RunError>,
+    draining: bool,
+    wall_seconds: f64,
+}
+
+/// The run's metrics (edge drops attributed to the receiving node) and its error: a startup
+/// error, else the first failure, else the hung nodes.
+fn report(spec: &GraphSpec, ending: Ending, counters: &[Arc<EdgeCounters>]) -> RunOutcome {
+    let Ending {
+        reports,
+        hung,
+        mut failures,
+        startup_error,
+        draining,
+        wall_seconds,
+    } = ending;
     let mut nodes: Vec<NodeReport> = reports.into_iter().flatten().collect();
     for report in &mut nodes {
         report.summarise();
     }
-    // Attribute edge drops to the receiving node.
-    let mut edges = Vec::new();
-    for (edge_index, (edge, counters)) in graph.edges.iter().zip(&edge_counters).enumerate() {
-        let dropped = counters.dropped.load(Ordering::Relaxed);
-        edges.push(EdgeReport {
-            from: edge_labels[edge_index].0.clone(),
-            to: edge_labels[edge_index].1.clone(),
-            policy: edge.policy.as_str(),
-            capacity: edge.capacity,
-            sent: counters.sent.load(Ordering::Relaxed),
-            dropped,
-        });
+    let edges: Vec<EdgeReport> = spec
+        .edges
+        .iter()
+        .zip(counters)
+        .map(|(edge, counters)| {
+            let (from, to) = spec.edge_label(edge);
+            EdgeReport {
+                from,
+                to,
+                policy: edge.policy.as_str(),
+                capacity: edge.capacity,
+                sent: counters.sent.load(Ordering::Relaxed),
+                dropped: counters.dropped.load(Ordering::Relaxed),
+            }
+        })
+        .collect();
+    for report in &mut nodes {
+        report.drops = spec
+            .edges
+            .iter()
+            .zip(&edges)
+            .filter(|(edge, _)| spec.nodes[edge.to_node].id == report.id)
+            .map(|(_, e)| e.dropped)
+            .sum();
     }
-    for (node_id, edge_indices) in node_ids.iter().zip(&inbound) {
-        let dropped: u64 = edge_indices.iter().map(|&e| edges[e].dropped).sum();
-        if let Some(report) = nodes.iter_mut().find(|r| &r.id == node_id) {
-            report.drops = dropped;
-        }
-    }
-
-    let mut failures = shared
-        .failures
-        .lock()
-        .map(|mut f| std::mem::take(&mut *f))
-        .unwrap_or_default();
     let error = if let Some(error) = startup_error {
         Some(error)
     } else if !failures.is_empty() {
@@ -313,7 +388,7 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
     } else if !hung.is_empty() {
         Some(RunError::Hung {
             nodes: hung.clone(),
-            grace_ms: graph.settings.shutdown_grace_ms,
+            grace_ms: spec.settings.shutdown_grace_ms,
         })
     } else {
         None
@@ -321,18 +396,18 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
     if !hung.is_empty() {
         warn!(
             "nodes still running after {} ms: {hung:?}",
-            graph.settings.shutdown_grace_ms
+            spec.settings.shutdown_grace_ms
         );
     }
     let outcome = match &error {
         Some(error) => format!("failed: {error}"),
-        None if stop.is_draining() => "drained".to_string(),
+        None if draining => "drained".to_string(),
         None => "completed".to_string(),
     };
     RunOutcome {
         report: RunReport {
-            graph: graph.name,
-            wall_seconds: started.elapsed().as_secs_f64(),
+            graph: spec.name.clone(),
+            wall_seconds,
             outcome,
             nodes,
             edges,
@@ -403,8 +478,8 @@ fn drive_source(mut thread: NodeThread, source: &mut dyn Source, shared: &Shared
         Step::Ok(info) => info,
         _ => return thread.report,
     };
-    if let Some(total) = info.total {
-        shared.progress.inc_length(total);
+    if let (Some(total), Some(observer)) = (info.total, &shared.observer) {
+        observer.expect_items(total);
     }
     let mut pacer = Pacer::new(thread.pacing);
     let abort = shared.stop.abort_rx.clone();
@@ -452,7 +527,9 @@ fn drive_source(mut thread: NodeThread, source: &mut dyn Source, shared: &Shared
             break;
         }
         thread.report.items_out += 1;
-        shared.progress.inc(1);
+        if let Some(observer) = &shared.observer {
+            observer.item_released();
+        }
     }
     thread.report
 }

@@ -1,4 +1,5 @@
-//! Turns a graph file into a runnable `ResolvedGraph`, reporting every problem at once.
+//! Turns a graph file into a `ValidatedGraph` (every problem reported at once, nothing built),
+//! and that into a runnable `ResolvedGraph`.
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -8,14 +9,14 @@ use crate::diagnostic::{Diagnostic, Diagnostics, Position, closest};
 use crate::node::{Node, Role};
 use crate::pacing::Pacing;
 use crate::policy::EdgePolicy;
-use crate::registry::{NodeKind, Registry};
-use crate::schema::{GraphFile, OnError, Settings, SyncMode};
+use crate::registry::{Checked, NodeKind, Registry};
+use crate::schema::{GraphFile, NodeDecl, OnError, Settings, SyncMode};
 
-/// A validated node, built and ready to run.
-pub struct ResolvedNode {
+/// A node as the graph declares it, its parameters typed and checked.
+pub struct NodeSpec {
     pub id: String,
     pub kind: NodeKind,
-    pub node: Node,
+    /// The parameters as resolved (defaults filled in).
     pub params: serde_json::Value,
     pub on_error: OnError,
     pub pacing: Pacing,
@@ -34,15 +35,39 @@ pub struct ResolvedEdge {
     pub policy: EdgePolicy,
 }
 
-pub struct ResolvedGraph {
+/// A graph checked against the registry: its nodes, parameters and typed edges. Nothing is
+/// built or opened.
+pub struct GraphSpec {
     pub name: String,
     pub file: String,
     pub settings: Settings,
-    pub nodes: Vec<ResolvedNode>,
+    pub nodes: Vec<NodeSpec>,
     pub edges: Vec<ResolvedEdge>,
 }
 
-impl ResolvedGraph {
+/// A validated graph, ready to build (`bevworld check` stops here).
+pub struct ValidatedGraph {
+    pub spec: GraphSpec,
+    /// Per node: its checked parameters and where its problems point.
+    pending: Vec<(Checked, ParamLocations)>,
+}
+
+/// A built graph, ready to run: `nodes[i]` is `spec.nodes[i]`, built.
+pub struct ResolvedGraph {
+    pub spec: GraphSpec,
+    pub nodes: Vec<Node>,
+}
+
+/// Where a node's parameters are written, to point a parameter problem at its line.
+#[derive(Clone, Default)]
+struct ParamLocations {
+    /// Each top-level key.
+    keys: BTreeMap<String, Location>,
+    /// The `params:` block, or the node's `kind:` when it has none.
+    block: Option<Location>,
+}
+
+impl GraphSpec {
     pub fn edge_label(&self, edge: &ResolvedEdge) -> (String, String) {
         let from = &self.nodes[edge.from_node];
         let to = &self.nodes[edge.to_node];
@@ -101,6 +126,42 @@ impl ResolvedGraph {
     }
 }
 
+impl ValidatedGraph {
+    /// Builds every node (loading what each needs); the problems of all nodes are reported
+    /// together, pointing at their parameters.
+    pub fn build(self) -> Result<ResolvedGraph, Diagnostics> {
+        let mut finder = Finder {
+            file: &self.spec.file,
+            found: Vec::new(),
+        };
+        let mut nodes = Vec::with_capacity(self.pending.len());
+        for ((checked, locations), spec) in self.pending.into_iter().zip(&self.spec.nodes) {
+            match checked.build() {
+                Ok(node) => nodes.push(node),
+                Err(error) => {
+                    param_problem(&mut finder, spec.kind.name, &spec.id, error, &locations)
+                }
+            }
+        }
+        if !finder.found.is_empty() {
+            return Err(Diagnostics(finder.found));
+        }
+        Ok(ResolvedGraph {
+            spec: self.spec,
+            nodes,
+        })
+    }
+}
+
+/// A `--set` that is not `node.key=value`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum OverrideError {
+    #[error("'{0}' is not node.key=value")]
+    NoValue(String),
+    #[error("'{0}' is not node.key")]
+    NoKey(String),
+}
+
 /// One `--set node.key=value` override.
 #[derive(Clone, Debug)]
 pub struct Override {
@@ -113,15 +174,15 @@ pub struct Override {
 
 impl Override {
     /// Parses `node.key=value`; the value is read as YAML (`12`, `true`, `[1, 2]`, `text`).
-    pub fn parse(text: &str) -> Result<Self, String> {
+    pub fn parse(text: &str) -> Result<Self, OverrideError> {
         let (target, value) = text
             .split_once('=')
-            .ok_or_else(|| format!("'{text}' is not node.key=value"))?;
+            .ok_or_else(|| OverrideError::NoValue(text.to_string()))?;
         let (node, key) = target
             .split_once('.')
-            .ok_or_else(|| format!("'{target}' is not node.key"))?;
+            .ok_or_else(|| OverrideError::NoKey(target.to_string()))?;
         if node.is_empty() || key.is_empty() {
-            return Err(format!("'{target}' is not node.key"));
+            return Err(OverrideError::NoKey(target.to_string()));
         }
         let value = if value.trim().is_empty() {
             serde_json::Value::String(String::new())
@@ -163,13 +224,43 @@ fn loc<T>(spanned: &Spanned<T>) -> Option<Location> {
     Some(spanned.referenced)
 }
 
-/// Parses and validates a graph file's text. `file` names it in diagnostics.
-pub fn resolve(
+/// Reports a parameter problem of node `id` at the key it names (or the params block).
+fn param_problem(
+    finder: &mut Finder,
+    kind: &str,
+    id: &str,
+    error: crate::registry::ParamError,
+    locations: &ParamLocations,
+) {
+    let top = error
+        .field
+        .as_deref()
+        .map(|f| f.split('.').next().unwrap_or(f).to_string());
+    let location = top
+        .as_ref()
+        .and_then(|f| locations.keys.get(f).copied())
+        .or(locations.block);
+    let field = error.field.clone().unwrap_or_else(|| "params".into());
+    finder.at(
+        location,
+        format!(
+            "bad parameter '{field}' of node '{id}' ({kind}): {}",
+            error.message
+        ),
+        error
+            .accepted
+            .map(|accepted| format!("accepted: {accepted}")),
+    );
+}
+
+/// Parses and validates a graph file's text, reporting every problem at once. Nothing is
+/// built: `ValidatedGraph::build` does that. `file` names the file in diagnostics.
+pub fn validate(
     text: &str,
     file: &str,
     registry: &Registry,
     overrides: &[Override],
-) -> Result<ResolvedGraph, Diagnostics> {
+) -> Result<ValidatedGraph, Diagnostics> {
     let mut finder = Finder {
         file,
         found: Vec::new(),
@@ -184,170 +275,244 @@ pub fn resolve(
             return Err(Diagnostics(finder.found));
         }
     };
-
-    // Nodes: unique ids, known kinds, valid parameters.
-    let mut ids: HashMap<String, usize> = HashMap::new();
-    let mut nodes: Vec<Option<ResolvedNode>> = Vec::new();
-    let mut node_ids: Vec<String> = Vec::new();
-    for decl in &parsed.nodes {
-        let decl = &decl.value;
-        let id = decl.id.value.clone();
-        if id.is_empty() || id.contains('.') {
-            finder.at(
-                loc(&decl.id),
-                format!("node id '{id}' is not valid"),
-                Some("ids are non-empty and have no '.'".into()),
-            );
+    let declared = DeclaredNodes::index(&mut finder, &parsed);
+    let mut nodes = Vec::new();
+    for (index, decl) in parsed.nodes.iter().enumerate() {
+        if declared.first_of(&decl.value.id.value) == Some(index) {
+            nodes.push(check_node(&mut finder, registry, &decl.value, overrides));
         }
-        if ids.contains_key(&id) {
-            finder.at(
-                loc(&decl.id),
-                format!("duplicate node id '{id}'"),
-                Some("every node needs its own id".into()),
-            );
-            continue;
-        }
-        ids.insert(id.clone(), node_ids.len());
-        node_ids.push(id.clone());
+    }
+    check_override_targets(&mut finder, overrides, &declared.ids);
+    let edges = check_edges(&mut finder, registry, &parsed, &declared);
+    if let Some(cycle) = find_cycle(declared.ids.len(), &edges) {
+        let names: Vec<&str> = cycle.iter().map(|&i| declared.ids[i].as_str()).collect();
+        let first = declared.decl(&parsed, names[0]).map(|d| d.id.referenced);
+        finder.at(first, format!("cycle: {} -> {}", names.join(" -> "), names[0]), Some("graphs must be acyclic; keep state inside a node (e.g. a history buffer) instead of feeding outputs back".into()));
+    }
+    if parsed.nodes.is_empty() {
+        finder.at(None, "the graph has no nodes", None);
+    }
+    if !finder.found.is_empty() {
+        return Err(Diagnostics(finder.found));
+    }
+    let (specs, pending): (Vec<NodeSpec>, Vec<_>) = nodes
+        .into_iter()
+        .flatten()
+        .map(|(spec, checked, locations)| (spec, (checked, locations)))
+        .unzip();
+    Ok(ValidatedGraph {
+        spec: GraphSpec {
+            name: parsed.name.unwrap_or_else(|| file.to_string()),
+            file: file.to_string(),
+            settings: parsed.settings,
+            nodes: specs,
+            edges,
+        },
+        pending,
+    })
+}
 
-        let Some(kind) = registry.get(&decl.kind.value) else {
-            let hint = match closest(&decl.kind.value, registry.names()) {
-                Some(near) => format!(
-                    "did you mean '{near}'? known kinds: {}",
-                    registry.names().collect::<Vec<_>>().join(", ")
-                ),
-                None => format!(
-                    "known kinds: {}",
-                    registry.names().collect::<Vec<_>>().join(", ")
-                ),
-            };
-            finder.at(
-                loc(&decl.kind),
-                format!("unknown node kind '{}' for node '{id}'", decl.kind.value),
-                Some(hint),
-            );
-            nodes.push(None);
-            continue;
+/// Validates and builds a graph: what `run` needs.
+pub fn resolve(
+    text: &str,
+    file: &str,
+    registry: &Registry,
+    overrides: &[Override],
+) -> Result<ResolvedGraph, Diagnostics> {
+    validate(text, file, registry, overrides)?.build()
+}
+
+/// The declared node ids in order (duplicates reported and left out), and each id's first
+/// declaration.
+struct DeclaredNodes {
+    ids: Vec<String>,
+    index: HashMap<String, usize>,
+    first: HashMap<String, usize>,
+}
+
+impl DeclaredNodes {
+    fn index(finder: &mut Finder, parsed: &GraphFile) -> Self {
+        let mut nodes = DeclaredNodes {
+            ids: Vec::new(),
+            index: HashMap::new(),
+            first: HashMap::new(),
         };
-
-        // Parameters, with `--set` overrides applied.
-        let mut params = serde_json::Map::new();
-        let mut param_locations: BTreeMap<String, Location> = BTreeMap::new();
-        if let Some(map) = &decl.params {
-            for (key, value) in &map.value {
-                params.insert(key.clone(), value.value.clone());
-                param_locations.insert(key.clone(), value.referenced);
+        for (position, decl) in parsed.nodes.iter().enumerate() {
+            let decl = &decl.value;
+            let id = decl.id.value.clone();
+            if id.is_empty() || id.contains('.') {
+                finder.at(
+                    loc(&decl.id),
+                    format!("node id '{id}' is not valid"),
+                    Some("ids are non-empty and have no '.'".into()),
+                );
             }
-        }
-        let mut pacing_decl = decl.pacing.as_ref().map(|p| p.value).unwrap_or_default();
-        let mut on_error = decl.on_error.as_ref().map(|o| o.value).unwrap_or_default();
-        for over in overrides.iter().filter(|o| o.node == id) {
-            match over.key.as_str() {
-                "pacing.speed" => {
-                    pacing_decl = crate::schema::PacingDecl {
-                        speed: over.value.as_f64(),
-                        rate_hz: None,
-                    }
-                }
-                "pacing.rate_hz" => {
-                    pacing_decl = crate::schema::PacingDecl {
-                        speed: None,
-                        rate_hz: over.value.as_f64(),
-                    }
-                }
-                "on_error" => match serde_json::from_value::<OnError>(over.value.clone()) {
-                    Ok(value) => on_error = value,
-                    Err(_) => finder.at(
-                        None,
-                        format!("--set {id}.on_error: '{}' is not accepted", over.value),
-                        Some("accepted: stop, skip".into()),
-                    ),
-                },
-                key => set_path(&mut params, key, over.value.clone()),
+            if nodes.index.contains_key(&id) {
+                finder.at(
+                    loc(&decl.id),
+                    format!("duplicate node id '{id}'"),
+                    Some("every node needs its own id".into()),
+                );
+                continue;
             }
+            nodes.index.insert(id.clone(), nodes.ids.len());
+            nodes.first.insert(id.clone(), position);
+            nodes.ids.push(id);
         }
+        nodes
+    }
 
-        let params_location = decl
+    /// The declaration position of the first node with this id.
+    fn first_of(&self, id: &str) -> Option<usize> {
+        self.first.get(id).copied()
+    }
+
+    fn decl<'a>(&self, parsed: &'a GraphFile, id: &str) -> Option<&'a NodeDecl> {
+        self.first_of(id)
+            .and_then(|i| parsed.nodes.get(i))
+            .map(|d| &d.value)
+    }
+
+    fn kind<'r>(
+        &self,
+        parsed: &GraphFile,
+        registry: &'r Registry,
+        id: &str,
+    ) -> Option<&'r NodeKind> {
+        self.decl(parsed, id)
+            .and_then(|d| registry.get(&d.kind.value))
+    }
+}
+
+/// One node: its kind, its parameters with `--set` applied and checked, its pacing, sync and
+/// tolerance. `None` when a problem was reported.
+fn check_node(
+    finder: &mut Finder,
+    registry: &Registry,
+    decl: &NodeDecl,
+    overrides: &[Override],
+) -> Option<(NodeSpec, Checked, ParamLocations)> {
+    let id = decl.id.value.clone();
+    let Some(kind) = registry.get(&decl.kind.value) else {
+        let hint = match closest(&decl.kind.value, registry.names()) {
+            Some(near) => format!(
+                "did you mean '{near}'? known kinds: {}",
+                registry.names().collect::<Vec<_>>().join(", ")
+            ),
+            None => format!(
+                "known kinds: {}",
+                registry.names().collect::<Vec<_>>().join(", ")
+            ),
+        };
+        finder.at(
+            loc(&decl.kind),
+            format!("unknown node kind '{}' for node '{id}'", decl.kind.value),
+            Some(hint),
+        );
+        return None;
+    };
+
+    // Parameters, with `--set` overrides applied.
+    let mut params = serde_json::Map::new();
+    let mut locations = ParamLocations {
+        keys: BTreeMap::new(),
+        block: decl
             .params
             .as_ref()
             .map(|p| p.referenced)
-            .or(Some(decl.kind.referenced));
-        let params_value = serde_json::Value::Object(params);
-        let built = match kind.build(&params_value) {
-            Ok(built) => Some(built),
-            Err(error) => {
-                let top = error
-                    .field
-                    .as_deref()
-                    .map(|f| f.split('.').next().unwrap_or(f).to_string());
-                let location = top
-                    .as_ref()
-                    .and_then(|f| param_locations.get(f).copied())
-                    .or(params_location);
-                let field = error.field.clone().unwrap_or_else(|| "params".into());
-                finder.at(
-                    location,
-                    format!(
-                        "bad parameter '{field}' of node '{id}' ({}): {}",
-                        kind.name, error.message
-                    ),
-                    error
-                        .accepted
-                        .map(|accepted| format!("accepted: {accepted}")),
-                );
-                None
-            }
-        };
-
-        let pacing = match Pacing::from_decl(&pacing_decl) {
-            Ok(pacing) => pacing,
-            Err(message) => {
-                finder.at(decl.pacing.as_ref().and_then(loc), format!("node '{id}': {message}"), Some("use `pacing: {speed: 1.0}` (0 = as fast as possible) or `pacing: {rate_hz: 12}`".into()));
-                Pacing::Unpaced
-            }
-        };
-        if decl.pacing.is_some() && kind.role != Role::Source {
-            finder.at(
-                decl.pacing.as_ref().and_then(loc),
-                format!(
-                    "node '{id}' is a {}, only sources are paced",
-                    kind.role.as_str()
-                ),
-                None,
-            );
+            .or(Some(decl.kind.referenced)),
+    };
+    if let Some(map) = &decl.params {
+        for (key, value) in &map.value {
+            params.insert(key.clone(), value.value.clone());
+            locations.keys.insert(key.clone(), value.referenced);
         }
-        let tolerance = decl
-            .align_tolerance_us
-            .as_ref()
-            .map(|t| t.value)
-            .unwrap_or(0);
-        if tolerance < 0 {
-            finder.at(
-                decl.align_tolerance_us.as_ref().and_then(loc),
-                format!("node '{id}': align_tolerance_us must be >= 0, got {tolerance}"),
-                None,
-            );
-        }
-
-        nodes.push(built.map(|built| {
-            ResolvedNode {
-                id: id.clone(),
-                kind: kind.clone(),
-                node: built.node,
-                params: built.resolved_params,
-                on_error,
-                pacing,
-                sync: decl
-                    .sync
-                    .as_ref()
-                    .map(|s| s.value)
-                    .unwrap_or(kind.default_sync),
-                align_tolerance_us: tolerance.max(0),
-            }
-        }));
     }
+    let mut pacing_decl = decl.pacing.as_ref().map(|p| p.value).unwrap_or_default();
+    let mut on_error = decl.on_error.as_ref().map(|o| o.value).unwrap_or_default();
+    for over in overrides.iter().filter(|o| o.node == id) {
+        match over.key.as_str() {
+            "pacing.speed" => {
+                pacing_decl = crate::schema::PacingDecl {
+                    speed: over.value.as_f64(),
+                    rate_hz: None,
+                }
+            }
+            "pacing.rate_hz" => {
+                pacing_decl = crate::schema::PacingDecl {
+                    speed: None,
+                    rate_hz: over.value.as_f64(),
+                }
+            }
+            "on_error" => match serde_json::from_value::<OnError>(over.value.clone()) {
+                Ok(value) => on_error = value,
+                Err(_) => finder.at(
+                    None,
+                    format!("--set {id}.on_error: '{}' is not accepted", over.value),
+                    Some("accepted: stop, skip".into()),
+                ),
+            },
+            key => set_path(&mut params, key, over.value.clone()),
+        }
+    }
+    let checked = match kind.check(&serde_json::Value::Object(params)) {
+        Ok(checked) => Some(checked),
+        Err(error) => {
+            param_problem(finder, kind.name, &id, error, &locations);
+            None
+        }
+    };
+
+    let pacing = match Pacing::from_decl(&pacing_decl) {
+        Ok(pacing) => pacing,
+        Err(error) => {
+            finder.at(decl.pacing.as_ref().and_then(loc), format!("node '{id}': {error}"), Some("use `pacing: {speed: 1.0}` (0 = as fast as possible) or `pacing: {rate_hz: 12}`".into()));
+            Pacing::Unpaced
+        }
+    };
+    if decl.pacing.is_some() && kind.role != Role::Source {
+        finder.at(
+            decl.pacing.as_ref().and_then(loc),
+            format!(
+                "node '{id}' is a {}, only sources are paced",
+                kind.role.as_str()
+            ),
+            None,
+        );
+    }
+    let tolerance = decl
+        .align_tolerance_us
+        .as_ref()
+        .map(|t| t.value)
+        .unwrap_or(0);
+    if tolerance < 0 {
+        finder.at(
+            decl.align_tolerance_us.as_ref().and_then(loc),
+            format!("node '{id}': align_tolerance_us must be >= 0, got {tolerance}"),
+            None,
+        );
+    }
+    let checked = checked?;
+    let spec = NodeSpec {
+        id,
+        kind: kind.clone(),
+        params: checked.resolved_params.clone(),
+        on_error,
+        pacing,
+        sync: decl
+            .sync
+            .as_ref()
+            .map(|s| s.value)
+            .unwrap_or(kind.default_sync),
+        align_tolerance_us: tolerance.max(0),
+    };
+    Some((spec, checked, locations))
+}
+
+/// Every `--set` must name a node of the graph.
+fn check_override_targets(finder: &mut Finder, overrides: &[Override], node_ids: &[String]) {
     for over in overrides {
-        if !ids.contains_key(&over.node) {
+        if !node_ids.contains(&over.node) {
             let hint = closest(&over.node, node_ids.iter().map(String::as_str))
                 .map(|near| format!("did you mean '{near}'?"));
             finder.at(
@@ -360,41 +525,38 @@ pub fn resolve(
             );
         }
     }
+}
 
-    // Edges: endpoints exist, types agree.
-    let mut edges = Vec::new();
-    let kinds: Vec<Option<NodeKind>> = parsed
-        .nodes
-        .iter()
-        .map(|d| registry.get(&d.value.kind.value).cloned())
-        .collect();
-    // `kinds` is indexed by declaration order; map node ids to it, skipping duplicates.
-    let mut decl_index: HashMap<&str, usize> = HashMap::new();
-    for (index, decl) in parsed.nodes.iter().enumerate() {
-        decl_index
-            .entry(decl.value.id.value.as_str())
-            .or_insert(index);
-    }
+/// Edges: endpoints exist, types agree, capacities are positive; then every required input
+/// must be connected.
+fn check_edges(
+    finder: &mut Finder,
+    registry: &Registry,
+    parsed: &GraphFile,
+    declared: &DeclaredNodes,
+) -> Vec<ResolvedEdge> {
+    let node_ids = &declared.ids;
+    let kind_of = |id: &str| declared.kind(parsed, registry, id);
     // Inputs that some edge names, valid or not: a broken edge is one problem, not two.
     let mut connected: Vec<Vec<bool>> = node_ids
         .iter()
         .map(|id| {
-            kinds[decl_index[id.as_str()]]
-                .as_ref()
+            kind_of(id)
                 .map(|k| vec![false; k.inputs.len()])
                 .unwrap_or_default()
         })
         .collect();
+    let mut edges = Vec::new();
     for edge in &parsed.edges {
         let edge = &edge.value;
-        let from = endpoint(&mut finder, &edge.from, &ids, &node_ids);
-        let to = endpoint(&mut finder, &edge.to, &ids, &node_ids);
+        let from = endpoint(finder, &edge.from, &declared.index, node_ids);
+        let to = endpoint(finder, &edge.to, &declared.index, node_ids);
         let (Some((from_node, from_port_name)), Some((to_node, to_port_name))) = (from, to) else {
             continue;
         };
-        let from_kind = kinds[decl_index[node_ids[from_node].as_str()]].as_ref();
-        let to_kind = kinds[decl_index[node_ids[to_node].as_str()]].as_ref();
-        let (Some(from_kind), Some(to_kind)) = (from_kind, to_kind) else {
+        let (Some(from_kind), Some(to_kind)) =
+            (kind_of(&node_ids[from_node]), kind_of(&node_ids[to_node]))
+        else {
             continue;
         };
         let from_port = from_kind.output(&from_port_name);
@@ -465,18 +627,14 @@ pub fn resolve(
             policy,
         });
     }
-
-    // Required inputs must be connected.
     for (index, id) in node_ids.iter().enumerate() {
-        let declared = decl_index[id.as_str()];
-        let Some(kind) = kinds[declared].as_ref() else {
+        let Some(kind) = kind_of(id) else {
             continue;
         };
         for (port_index, port) in kind.inputs.iter().enumerate() {
             if port.required && !connected[index][port_index] {
-                let location = parsed.nodes.get(declared).map(|d| d.value.id.referenced);
                 finder.at(
-                    location,
+                    declared.decl(parsed, id).map(|d| d.id.referenced),
                     format!(
                         "required input '{id}.{}' ({}) is not connected",
                         port.name,
@@ -490,31 +648,7 @@ pub fn resolve(
             }
         }
     }
-
-    // Cycles: dataflow graphs here are acyclic, so drain-on-end terminates.
-    if let Some(cycle) = find_cycle(node_ids.len(), &edges) {
-        let names: Vec<&str> = cycle.iter().map(|&i| node_ids[i].as_str()).collect();
-        let first = parsed
-            .nodes
-            .get(decl_index[names[0]])
-            .map(|d| d.value.id.referenced);
-        finder.at(first, format!("cycle: {} -> {}", names.join(" -> "), names[0]), Some("graphs must be acyclic; keep state inside a node (e.g. a history buffer) instead of feeding outputs back".into()));
-    }
-
-    if parsed.nodes.is_empty() {
-        finder.at(None, "the graph has no nodes", None);
-    }
-    if !finder.found.is_empty() {
-        return Err(Diagnostics(finder.found));
-    }
-    let nodes = nodes.into_iter().flatten().collect();
-    Ok(ResolvedGraph {
-        name: parsed.name.unwrap_or_else(|| file.to_string()),
-        file: file.to_string(),
-        settings: parsed.settings,
-        nodes,
-        edges,
-    })
+    edges
 }
 
 fn endpoint(

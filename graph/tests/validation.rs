@@ -192,9 +192,9 @@ fn set_overrides_parameters_and_rejects_unknown_nodes() {
         Override::parse("a.pacing.rate_hz=12").unwrap(),
     ];
     let graph = resolve(yaml, "g.yaml", &registry(), &overrides).unwrap();
-    assert_eq!(graph.nodes[0].params["count"], 7);
+    assert_eq!(graph.spec.nodes[0].params["count"], 7);
     assert_eq!(
-        graph.nodes[0].pacing,
+        graph.spec.nodes[0].pacing,
         bevworld_graph::Pacing::Fixed { rate_hz: 12.0 }
     );
 
@@ -217,12 +217,63 @@ fn check_listing_shows_resolved_defaults() {
     // text_sink's input is unconnected: fix by giving it nothing else to complain about.
     let yaml = yaml.replace("  - {id: t, kind: text_sink}\n", "");
     let graph = resolve(&yaml, "g.yaml", &registry(), &[]).unwrap();
-    let listing = graph.describe();
+    let listing = graph.spec.describe();
     assert!(listing.contains("\"step_us\":1"), "{listing}");
     assert!(
         listing.contains("edge a.out -> b.in [Counted, capacity 16, block]"),
         "{listing}"
     );
-    let dot = bevworld_graph::dot::to_dot(&graph);
+    let dot = bevworld_graph::dot::to_dot(&graph.spec);
     assert!(dot.contains("\"a\" -> \"b\""));
+}
+
+#[test]
+fn validation_builds_nothing_and_building_reports_at_the_parameter() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    use bevworld_graph::{KindSpec, Node, ParamError, PortSpec, validate};
+    use serde::{Deserialize, Serialize};
+
+    static BUILT: AtomicUsize = AtomicUsize::new(0);
+
+    #[derive(Deserialize, Serialize)]
+    #[serde(deny_unknown_fields)]
+    struct LoaderParams {
+        weights: String,
+    }
+
+    let mut registry = registry();
+    registry.register(
+        KindSpec::sink("loader", "loads a file when built")
+            .input(PortSpec::new::<common::Counted>("in")),
+        |params: LoaderParams| {
+            BUILT.fetch_add(1, Ordering::SeqCst);
+            if params.weights == "broken.bpk" {
+                return Err(ParamError::field("weights", "does not fit the model"));
+            }
+            Ok(Node::Sink(Box::new(common::Discard)))
+        },
+    );
+    let yaml = |weights: &str| {
+        format!(
+            "nodes:\n  - {{id: s, kind: count}}\n  - id: l\n    kind: loader\n    params:\n      weights: {weights}\nedges:\n  - {{from: s.out, to: l.in}}\n"
+        )
+    };
+    let good = validate(&yaml("good.bpk"), "g.yaml", &registry, &[]).expect("valid");
+    assert_eq!(BUILT.load(Ordering::SeqCst), 0, "validation built a node");
+    assert_eq!(good.spec.nodes[1].params["weights"], "good.bpk");
+    good.build().expect("builds");
+    assert_eq!(BUILT.load(Ordering::SeqCst), 1);
+
+    let broken = validate(&yaml("broken.bpk"), "g.yaml", &registry, &[]).expect("valid");
+    let problems = match broken.build() {
+        Err(problems) => problems,
+        Ok(_) => panic!("a node that cannot be built was accepted"),
+    };
+    let d = only(&problems);
+    assert!(
+        d.message.contains("'weights' of node 'l'") && d.message.contains("does not fit"),
+        "{d}"
+    );
+    assert_eq!(line_col(d).0, 6, "{d}");
 }

@@ -46,9 +46,7 @@ pub struct SynthArgs {
 }
 
 pub fn run(args: &SynthArgs) -> Result<ExitCode> {
-    let (camera_width, camera_height) = parse_size(&args.camera_size)
-        .map_err(anyhow::Error::msg)
-        .context("--camera-size")?;
+    let (camera_width, camera_height) = parse_size(&args.camera_size).context("--camera-size")?;
     if !(args.seconds > 0.0) || args.scenes == 0 {
         bail!("--seconds must be > 0 and --scenes >= 1");
     }

@@ -9,8 +9,8 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
 use bevworld_sensors::{Dataset, DatasetOptions};
-use bevworld_tokenizer::latent::{LatentStatsAccumulator, LatentStatsFile, stats_path_for};
 use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights, weights_digest};
+use bevworld_types::{LatentStatsAccumulator, LatentStatsFile, stats_path_for};
 use clap::{Args, Subcommand};
 
 #[derive(Subcommand)]
@@ -86,7 +86,7 @@ fn stats(args: &StatsArgs) -> Result<ExitCode> {
         progress.inc(1);
     }
     progress.finish_and_clear();
-    let stats = accumulator.finish().map_err(anyhow::Error::msg)?;
+    let stats = accumulator.finish()?;
     let out = args
         .out
         .clone()

@@ -1,17 +1,15 @@
-//! `bevworld train tokenizer`: trains the tokenizer from a training config, with checkpoints
-//! every N steps (`--resume` continues exactly), periodic validation, `metrics.csv`, and the
-//! final weights at `RUN/tokenizer.bpk`.
+//! `bevworld train tokenizer`: parses the flags into a `TrainRequest` and runs it
+//! (`bevworld_tokenizer_train::train`), with a progress bar; the run itself is the library's.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
-use bevworld_tokenizer::train::checkpoint;
-use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
-use bevworld_tokenizer::train::metrics_log::{MetricsLog, Row};
-use bevworld_tokenizer::train::{LidarDraw, LossWeights, TrainConfig, Trainer, ValidationReport};
-use bevworld_tokenizer::{FrameInputs, Modality, TokenizerConfig};
+use anyhow::{Result, anyhow, bail};
+use bevworld_tokenizer::Modality;
+use bevworld_tokenizer_train::{
+    LidarDraw, Overrides, Progress, RunError, Targets, TrainRequest, train,
+};
+use bevworld_training::{Observer, StepReport, Validation};
 use clap::{Args, Subcommand};
 
 #[derive(Subcommand)]
@@ -117,14 +115,19 @@ pub struct TrainTokenizerArgs {
     pub log_every: usize,
 }
 
-/// The config's own check of the field `key` names, reported under the flag `--{flag}` that set
-/// the value.
-fn refuse_config_problem(config: &TrainConfig, flag: &str, key: &str) -> Result<()> {
-    match config.problems().into_iter().find(|p| p.starts_with(key)) {
-        Some(problem) => bail!("--{flag}: {problem}"),
-        None => Ok(()),
-    }
-}
+/// The flag that sets each config field an override can refuse, so that the refusal names the
+/// flag the user typed.
+const FLAG_OF_FIELD: [(&str, &str); 9] = [
+    ("optimizer.lr", "--lr"),
+    ("ema_decay", "--ema-decay"),
+    ("loss.rgb_l1", "--rgb-l1"),
+    ("loss.rgb_l2", "--rgb-l2"),
+    ("loss.lidar_l1", "--lidar-l1"),
+    ("loss.lidar_distortion", "--lidar-distortion"),
+    ("loss.lidar_termination", "--lidar-termination"),
+    ("render.camera_stride", "--camera-stride"),
+    ("steps", "--steps"),
+];
 
 pub fn run(command: &TrainCommand) -> Result<ExitCode> {
     match command {
@@ -132,381 +135,182 @@ pub fn run(command: &TrainCommand) -> Result<ExitCode> {
     }
 }
 
+fn request(args: &TrainTokenizerArgs) -> Result<TrainRequest> {
+    let modalities = args
+        .modalities
+        .as_deref()
+        .map(Modality::parse_list)
+        .transpose()
+        .map_err(|e| anyhow!("--modalities: {e}"))?;
+    let ema_decay = match args.ema_decay.as_deref() {
+        None => None,
+        Some("off") => Some(None),
+        Some(number) => Some(Some(number.parse::<f64>().map_err(|_| {
+            anyhow!("--ema-decay: '{number}' is neither a number nor 'off'")
+        })?)),
+    };
+    let lidar_draw = args
+        .lidar_draw
+        .as_deref()
+        .map(str::parse::<LidarDraw>)
+        .transpose()
+        .map_err(|e| anyhow!("--lidar-draw: {e}"))?;
+    Ok(TrainRequest {
+        config: args.config.clone(),
+        out: args.out.clone(),
+        resume: args.resume,
+        overrides: Overrides {
+            steps: args.steps,
+            modalities,
+            camera_stride: args.camera_stride,
+            lr: args.lr,
+            ema_decay,
+            lidar_draw,
+            rgb_l1: args.rgb_l1,
+            rgb_l2: args.rgb_l2,
+            lidar_l1: args.lidar_l1,
+            lidar_distortion: args.lidar_distortion,
+            lidar_termination: args.lidar_termination,
+            vgg: args.vgg.clone(),
+        },
+        until: args.until,
+        data: args.data.clone(),
+        val: args.val.clone(),
+        threads: args.threads,
+        log_every: args.log_every,
+        targets: Targets {
+            psnr_db: args.require_psnr,
+            chamfer_m2: args.require_chamfer,
+        },
+    })
+}
+
 fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
-    let (mut config, mut model_config) = TrainConfig::from_yaml_file(&args.config)?;
-    let run_model = args.out.join("tokenizer.yaml");
-    if let Some(text) = &args.modalities {
-        model_config.modalities =
-            Modality::parse_list(text).map_err(|e| anyhow::anyhow!("--modalities: {e}"))?;
-    }
-    if let Some(stride) = args.camera_stride {
-        model_config.render.camera_stride = stride;
-        let problems = model_config.problems();
-        if let Some(problem) = problems.iter().find(|p| p.contains("camera_stride")) {
-            bail!("--camera-stride: {problem}");
-        }
-    }
-    // A resumed run keeps the modalities and the ray grid it started with; naming others
-    // would silently change the experiment halfway.
-    if args.resume && run_model.exists() {
-        let started = TokenizerConfig::from_yaml_file(&run_model)?;
-        if args.modalities.is_some() && started.modalities != model_config.modalities {
-            bail!(
-                "--modalities: {} trained {:?}; resume it without --modalities, or choose another --out",
-                args.out.display(),
-                started.modalities
-            );
-        }
-        if args.camera_stride.is_some()
-            && started.render.camera_stride != model_config.render.camera_stride
-        {
-            bail!(
-                "--camera-stride: {} trained on the 1/{} ray grid; resume it without --camera-stride, or choose another --out",
-                args.out.display(),
-                started.render.camera_stride
-            );
-        }
-        model_config.modalities = started.modalities;
-        model_config.render.camera_stride = started.render.camera_stride;
-    }
-    if let Some(steps) = args.steps {
-        // A run given its own length decays over it: the fits and ablations that name a step
-        // count keep the schedule they were measured with.
-        config.steps = steps;
-        config.optimizer.decay_steps = None;
-    }
-    if let Some(text) = &args.ema_decay {
-        config.ema_decay = match text.as_str() {
-            "off" => None,
-            number => Some(number.parse::<f64>().map_err(|_| {
-                anyhow::anyhow!("--ema-decay: '{number}' is neither a number nor 'off'")
-            })?),
-        };
-        refuse_config_problem(&config, "ema-decay", "ema_decay:")?;
-    }
-    if let Some(lr) = args.lr {
-        config.optimizer.lr = lr;
-        refuse_config_problem(&config, "lr", "optimizer.lr:")?;
-    }
-    if let Some(text) = &args.lidar_draw {
-        config.rays.lidar_draw = text
-            .parse::<LidarDraw>()
-            .map_err(|e| anyhow::anyhow!("--lidar-draw: {e}"))?;
-    }
-    let weight_flags: [(&str, Option<f64>, fn(&mut LossWeights) -> &mut f64); 5] = [
-        ("rgb-l1", args.rgb_l1, |w| &mut w.rgb_l1),
-        ("rgb-l2", args.rgb_l2, |w| &mut w.rgb_l2),
-        ("lidar-l1", args.lidar_l1, |w| &mut w.lidar_l1),
-        ("lidar-distortion", args.lidar_distortion, |w| {
-            &mut w.lidar_distortion
-        }),
-        ("lidar-termination", args.lidar_termination, |w| {
-            &mut w.lidar_termination
-        }),
-    ];
-    for (flag, weight, field) in weight_flags {
-        if let Some(weight) = weight {
-            *field(&mut config.loss) = weight;
-            let key = format!("loss.{}:", flag.replace('-', "_"));
-            refuse_config_problem(&config, flag, &key)?;
-        }
-    }
-    if let Some(vgg) = &args.vgg {
-        config.perceptual_weights = Some(vgg.clone());
-    }
-    let has_checkpoint = checkpoint::latest(&args.out).is_ok();
-    if has_checkpoint && !args.resume {
-        bail!(
-            "{} already holds checkpoints: pass --resume to continue that run, or choose another --out",
-            args.out.display()
-        );
-    }
-    // A run started without a weight average has none to continue; say how to resume it
-    // before any data load.
-    if let (true, Some(_), Ok((files, _))) =
-        (args.resume, config.ema_decay, checkpoint::latest(&args.out))
-        && !files.weight_average().is_file()
-    {
-        bail!(
-            "--resume: {} was trained without a moving average of its weights ({} is missing); resume it with --ema-decay off, or with --config {}",
-            args.out.display(),
-            files.weight_average().display(),
-            args.out.join("train.yaml").display()
-        );
-    }
-    // The run folder is made once the data have loaded: a refused or missing dataset leaves
-    // nothing behind.
-    let train_dir = match &args.data {
-        Some(dir) => dir.clone(),
-        None => {
-            ensure_synthetic(&config.data.train)?;
-            config.data.train.dir.clone()
-        }
-    };
-    let val_dir = match &args.val {
-        Some(dir) => dir.clone(),
-        None => {
-            ensure_synthetic(&config.data.val)?;
-            config.data.val.dir.clone()
-        }
-    };
-    let inputs = FrameInputs::new(&model_config);
-    let loading = indicatif::ProgressBar::new(0).with_message("preparing frames");
-    let train = load_frames(&train_dir, &inputs, usize::MAX, |done, total| {
-        loading.set_length(total as u64);
-        loading.set_position(done as u64);
-    })?;
-    let val = load_frames(&val_dir, &inputs, config.validation_frames, |_, _| {})?;
-    loading.finish_and_clear();
-    println!(
-        "training '{}' on {} frames of {} (validation: {} frames of {})",
-        model_config.name,
-        train.len(),
-        train_dir.display(),
-        val.len(),
-        val_dir.display()
-    );
-
+    let request = request(args)?;
     let (_, device) = bevworld_device::from_env()?;
-    let mut trainer = Trainer::new(config.clone(), model_config.clone(), &device, train, val)?;
-    if let Some(threads) = args.threads {
-        trainer = trainer.with_threads(threads);
-    }
-    if args.resume {
-        trainer = trainer.resume(&args.out)?;
-        println!("resumed at step {}", trainer.step());
-    }
-    // The configs this run used, beside its weights: the training config with the command
-    // line's overrides applied and naming the model config saved beside it, so that
-    // `--config RUN/train.yaml --resume` continues the run.
-    let mut recorded = config.clone();
-    recorded.model = PathBuf::from("tokenizer.yaml");
-    recorded.perceptual_weights = recorded
-        .perceptual_weights
-        .map(|p| std::path::absolute(&p).unwrap_or(p));
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    let run_train = args.out.join("train.yaml");
-    std::fs::write(&run_train, recorded.to_yaml()?)
-        .with_context(|| format!("writing {}", run_train.display()))?;
-    if model_config == TokenizerConfig::from_yaml_file(&config.model)? {
-        // Resumed from the run folder's own config, the model config is already there;
-        // copying a file onto itself would truncate it.
-        if !same_file(&config.model, &run_model) {
-            std::fs::copy(&config.model, &run_model).context("copying the model config")?;
-        }
-    } else {
-        // Overridden on the command line (an ablation's modalities, another ray grid): the
-        // config as trained, so `encode` and `render` build the model these weights fit.
-        std::fs::write(&run_model, model_config.to_yaml()?)
-            .with_context(|| format!("writing {}", run_model.display()))?;
-    }
-    let mut log = MetricsLog::open(&args.out, args.resume.then_some(trainer.step()))
-        .with_context(|| format!("opening {}/metrics.csv", args.out.display()))?;
-
-    let started = Instant::now();
-    let progress = indicatif::ProgressBar::new(config.steps as u64);
-    progress.set_position(trainer.step() as u64);
-    progress.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{bar:30} {pos}/{len} steps {elapsed_precise} eta {eta} {msg}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    let mut last_validation = None;
-    let stop = args.until.unwrap_or(config.steps).min(config.steps);
-    while !trainer.is_done() && trainer.step() < stop {
-        let report = match trainer.train_step() {
-            Ok(report) => report,
-            Err(error) => {
-                progress.abandon();
-                return Err(error.into());
+    let mut bar = Bar::default();
+    let summary = match train(&request, &device, &mut bar) {
+        Ok(summary) => summary,
+        Err(RunError::Override { problem }) => {
+            bar.abandon();
+            match FLAG_OF_FIELD
+                .iter()
+                .find(|(field, _)| *field == problem.field)
+            {
+                Some((_, flag)) => bail!("{flag}: {problem}"),
+                None => bail!("{problem}"),
             }
-        };
-        progress.set_position(report.step as u64);
-        progress.set_message(format!(
-            "loss {:.4} (rgb {}, lidar {} m)",
-            report.loss,
-            shown(report.loss_rgb, 4),
-            shown(report.loss_lidar, 3)
-        ));
-        if report.step % args.log_every.max(1) == 0 {
-            log.append(&Row {
-                step: report.step,
-                phase: "train",
-                lr: Some(report.lr),
-                loss: Some(report.loss),
-                loss_rgb: report.loss_rgb,
-                loss_rgb_squared: report.loss_rgb_squared,
-                loss_lidar: report.loss_lidar,
-                loss_distortion: report.loss_distortion,
-                loss_termination: report.loss_termination,
-                loss_perceptual: report.loss_perceptual,
-                loss_gan: report.loss_gan,
-                loss_discriminator: report.loss_discriminator,
-                grad_norm: Some(report.grad_norm),
-                elapsed_s: started.elapsed().as_secs_f64(),
-                ..Row::default()
-            })?;
         }
-        let last = trainer.is_done() || trainer.step() >= stop;
-        if report.step % config.validate_every == 0 || last {
-            // With a moving average shipped, the last iterate's scores say what the average
-            // adds; its row comes first, so that a run's last row is the shipped weights'.
-            let shipped = trainer.validate();
-            let reports = trainer
-                .validate_iterate()
-                .map(|i| ("val_iterate", "the last iterate", i))
-                .into_iter()
-                .chain([(
-                    "val",
-                    if config.ema_decay.is_some() {
-                        "the weights' moving average"
-                    } else {
-                        "validation"
-                    },
-                    shipped,
-                )]);
-            for (phase, what, v) in reports {
-                tracing::info!(
-                    step = report.step,
-                    psnr_db = v.psnr_db,
-                    ssim = v.ssim,
-                    chamfer_m2 = v.chamfer_m2,
-                    "{what}"
-                );
-                progress.println(format!(
-                    "step {}: {what}: PSNR {} dB, SSIM {}, Chamfer {} m² ({} frames)",
-                    report.step,
-                    shown(v.psnr_db, 2),
-                    shown(v.ssim, 3),
-                    shown(v.chamfer_m2, 3),
-                    v.frames
-                ));
-                log.append(&Row {
-                    step: report.step,
-                    phase,
-                    psnr_db: v.psnr_db,
-                    ssim: v.ssim,
-                    chamfer_m2: v.chamfer_m2,
-                    elapsed_s: started.elapsed().as_secs_f64(),
-                    ..Row::default()
-                })?;
-            }
-            last_validation = Some(shipped);
+        Err(error) => {
+            bar.abandon();
+            return Err(error.into());
         }
-        if report.step % config.checkpoint_every == 0 || last {
-            trainer.save_checkpoint(&args.out)?;
-        }
-    }
-    progress.finish();
-    let curves = args.out.join("curves.png");
-    plot_curves(log.path(), &curves)?;
-    let weights = args.out.join("tokenizer.bpk");
-    trainer.save_weights(&weights)?;
+    };
+    bar.finish();
     println!(
         "{} steps in {:.1} min; weights {}; log {}; curves {}",
-        trainer.step(),
-        started.elapsed().as_secs_f64() / 60.0,
-        weights.display(),
-        log.path().display(),
-        curves.display()
+        summary.steps,
+        summary.minutes,
+        summary.weights.display(),
+        summary.log.display(),
+        summary.curves.display()
     );
-    let missed = missed_targets(last_validation, args.require_psnr, args.require_chamfer);
-    if missed.is_empty() {
+    if summary.missed.is_empty() {
         return Ok(ExitCode::SUCCESS);
     }
-    for line in &missed {
+    for line in &summary.missed {
         eprintln!("target missed: {line}");
     }
     Ok(ExitCode::FAILURE)
 }
 
-/// Each required figure the final validation did not reach, as a sentence.
-fn missed_targets(
-    validation: Option<ValidationReport>,
-    psnr_db: Option<f64>,
-    chamfer_m2: Option<f64>,
-) -> Vec<String> {
-    let mut missed = Vec::new();
-    let v = validation.unwrap_or(ValidationReport {
-        frames: 0,
-        psnr_db: None,
-        ssim: None,
-        chamfer_m2: None,
-    });
-    if let Some(target) = psnr_db {
-        match v.psnr_db {
-            Some(p) if p >= target => {}
-            Some(p) => missed.push(format!("PSNR {p:.2} dB < {target} dB")),
-            None => missed.push(format!("PSNR ≥ {target} dB required, none measured")),
-        }
-    }
-    if let Some(target) = chamfer_m2 {
-        match v.chamfer_m2 {
-            Some(c) if c <= target => {}
-            Some(c) => missed.push(format!("Chamfer {c:.3} m² > {target} m²")),
-            None => missed.push(format!("Chamfer ≤ {target} m² required, none measured")),
-        }
-    }
-    missed
+/// The run's progress on the terminal: the data loading, then a bar of steps with the step's
+/// loss, and a line per validation.
+#[derive(Default)]
+struct Bar {
+    bar: Option<indicatif::ProgressBar>,
 }
 
-/// Draws `curves.png` from `metrics.csv`: training loss (log scale, left), validation PSNR
-/// (middle) and validation Chamfer (right).
-fn plot_curves(csv: &std::path::Path, png: &std::path::Path) -> Result<()> {
-    let text =
-        std::fs::read_to_string(csv).with_context(|| format!("reading {}", csv.display()))?;
-    let (mut loss, mut psnr, mut chamfer) = (Vec::new(), Vec::new(), Vec::new());
-    for line in text.lines().skip(1) {
-        let fields: Vec<&str> = line.split(',').collect();
-        let number = |i: usize| fields.get(i).and_then(|f| f.parse::<f64>().ok());
-        let Some(step) = number(0) else { continue };
-        match fields.get(1) {
-            Some(&"train") => loss.extend(number(3).map(|v| (step, v))),
-            Some(&"val") => {
-                psnr.extend(number(10).map(|v| (step, v)));
-                chamfer.extend(number(12).map(|v| (step, v)));
-            }
-            _ => {}
+impl Bar {
+    fn shown(&mut self) -> &indicatif::ProgressBar {
+        self.bar
+            .get_or_insert_with(|| indicatif::ProgressBar::new(0).with_message("preparing frames"))
+    }
+
+    fn abandon(&self) {
+        if let Some(bar) = &self.bar {
+            bar.abandon();
         }
     }
-    use bevworld_tokenizer::train::plot::{Series, plot};
-    plot(
-        png,
-        &[
-            Series {
-                title: "TRAINING LOSS (LOG)",
-                points: &loss,
-                colour: [200, 60, 40],
-                log_scale: true,
-            },
-            Series {
-                title: "VAL PSNR (DB)",
-                points: &psnr,
-                colour: [40, 90, 200],
-                log_scale: false,
-            },
-            Series {
-                title: "VAL CHAMFER (M2, LOG)",
-                points: &chamfer,
-                colour: [30, 150, 60],
-                log_scale: true,
-            },
-        ],
-    )
-    .with_context(|| format!("writing {}", png.display()))
+
+    fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish();
+        }
+    }
+}
+
+impl Observer for Bar {
+    fn stepped(&mut self, report: &StepReport) {
+        let bar = self.shown();
+        bar.set_position(report.step as u64);
+        bar.set_message(format!(
+            "loss {:.4} (rgb {}, lidar {} m)",
+            report.loss,
+            shown(report.term("loss_rgb"), 4),
+            shown(report.term("loss_lidar"), 3)
+        ));
+    }
+
+    fn validated(&mut self, step: usize, validation: &Validation) {
+        let line = format!(
+            "step {step}: {}: PSNR {} dB, SSIM {}, Chamfer {} m² ({} frames{})",
+            validation.label,
+            shown(validation.score("psnr_db"), 2),
+            shown(validation.score("ssim"), 3),
+            shown(validation.score("chamfer_m2"), 3),
+            validation.frames,
+            match validation.score("cameras_unscored") {
+                Some(n) if n > 0.0 => format!(", {n} camera images unscored"),
+                _ => String::new(),
+            }
+        );
+        tracing::info!(step, "{line}");
+        self.shown().println(line);
+    }
+}
+
+impl Progress for Bar {
+    fn loading(&mut self, done: usize, total: usize) {
+        let bar = self.shown();
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    }
+
+    fn prepared(&mut self, message: &str) {
+        if let Some(bar) = self.bar.take() {
+            bar.finish_and_clear();
+        }
+        println!("{message}");
+    }
+
+    fn started(&mut self, step: usize, stop: usize, resumed: bool) {
+        if resumed {
+            println!("resumed at step {step}");
+        }
+        let bar = indicatif::ProgressBar::new(stop as u64);
+        bar.set_position(step as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{bar:30} {pos}/{len} steps {elapsed_precise} eta {eta} {msg}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        self.bar = Some(bar);
+    }
 }
 
 /// A figure with `decimals` digits, or "-" for a modality the model does not render.
 fn shown(value: Option<f64>, decimals: usize) -> String {
     value.map_or_else(|| "-".into(), |v| format!("{v:.decimals$}"))
-}
-
-/// Whether two paths name one existing file.
-fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
-    }
 }

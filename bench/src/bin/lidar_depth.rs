@@ -19,12 +19,12 @@
 
 use std::path::PathBuf;
 
-use bevworld_bench::{held_out_synthetic_set, markdown_table, plot, results_dir, write_results};
+use bevworld_bench::{held_out_synthetic_set, markdown_table, results_dir, write_results};
 use bevworld_metrics::{Roi, chamfer_in_roi};
 use bevworld_tokenizer::render::rays::{points_from_depths, sample_positions};
 use bevworld_tokenizer::render::{render_weights, sample_trilinear};
-use bevworld_tokenizer::train::data::load_frames;
 use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
+use bevworld_tokenizer_train::data::load_frames;
 use burn::prelude::*;
 
 /// Range buckets, metres from the LiDAR.
@@ -207,15 +207,15 @@ fn main() {
         ),
         &json,
     );
-    let _ = std::fs::write(
-        results_dir().join(format!("{name}.svg")),
-        plot::bars(
-            "Share of the squared depth error by range",
-            "%",
-            &shares,
-            false,
-        ),
-    );
+    if let Err(error) = bevworld_plot::bars_svg(
+        &results_dir().join(format!("{name}.svg")),
+        "Share of the squared depth error by range",
+        "%",
+        &shares,
+        false,
+    ) {
+        eprintln!("{error}");
+    }
 }
 
 /// The depth where a ray's accumulated weight reaches half its opacity: the sample's depth

@@ -5,16 +5,14 @@
 
 use std::time::Instant;
 
-use bevworld_bench::{markdown_table, percentile, plot, results_dir, write_results};
+use bevworld_bench::{markdown_table, percentile, results_dir, write_results};
 use bevworld_pillarize::dense::pillarize_dense;
 use bevworld_pillarize::{Limits, Pillarizer};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_types::PillarGrid;
 
 fn ego_points(dataset: &str) -> Vec<[f32; 4]> {
-    let root = bevworld_bench::manifest_dir()
-        .join("../../shared/data")
-        .join(dataset);
+    let root = bevworld_sensors::data_root().join(dataset);
     let options = DatasetOptions {
         skip_images: true,
         ..Default::default()
@@ -104,13 +102,13 @@ fn main() {
 Both implementations run in the same process on one thread and produce identical pillars (checked). Goal: <= 0.5 ms per nuScenes sweep on one core.\n\n![times](pillarize.svg)\n",
         &serde_json::Value::Object(json),
     );
-    let _ = std::fs::write(
-        results_dir().join("pillarize.svg"),
-        plot::bars(
-            "Pillarization time per sweep (one core)",
-            "µs",
-            &bars,
-            false,
-        ),
-    );
+    if let Err(error) = bevworld_plot::bars_svg(
+        &results_dir().join("pillarize.svg"),
+        "Pillarization time per sweep (one core)",
+        "µs",
+        &bars,
+        false,
+    ) {
+        eprintln!("{error}");
+    }
 }

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use bevworld_bench::{markdown_table, plot, results_dir, write_results};
+use bevworld_bench::{markdown_table, results_dir, write_results};
 use bevworld_graph::{
     Inputs, KindSpec, Node, NodeError, Outputs, PortSpec, Registry, RunOptions, Sink, Source,
     SourceInfo, Task, resolve, run,
@@ -356,7 +356,8 @@ The bare chain at 1 kHz is the floor for any thread-per-node design on this mach
             "large_1mb": {"msgs_per_s": large_run.rate, "paced_hop_p50_us": paced_large.hop_p50_us, "paced_hop_p99_us": paced_large.hop_p99_us, "copies": copies},
         }),
     );
-    let svg = plot::bars(
+    if let Err(error) = bevworld_plot::bars_svg(
+        &results_dir().join("runtime.svg"),
         "Messages per second through 5 pass-through nodes",
         "msgs/s",
         &[
@@ -365,6 +366,7 @@ The bare chain at 1 kHz is the floor for any thread-per-node design on this mach
             ("runtime, 1 MB (shared)".into(), large_run.rate),
         ],
         false,
-    );
-    let _ = std::fs::write(results_dir().join("runtime.svg"), svg);
+    ) {
+        eprintln!("{error}");
+    }
 }

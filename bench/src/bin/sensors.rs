@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use bevworld_bench::{markdown_table, percentile, plot, results_dir, write_results};
+use bevworld_bench::{markdown_table, percentile, results_dir, write_results};
 use bevworld_graph::{
     Inputs, KindSpec, Node, NodeError, PortSpec, Registry, RunOptions, Sink, resolve, run,
 };
@@ -45,9 +45,7 @@ fn registry() -> Registry {
 }
 
 fn shared_data(name: &str) -> PathBuf {
-    bevworld_bench::manifest_dir()
-        .join("../../shared/data")
-        .join(name)
+    bevworld_sensors::data_root().join(name)
 }
 
 /// Replays `repeat` frames unpaced through source -> sink; (frames/s, source p50 ms, p99 ms).
@@ -173,7 +171,8 @@ latency is the source's time per frame. Goal: >= 24 Hz (2x headroom over 12 Hz l
             "synth_frames_per_s": synth.frames_per_second(),
         }),
     );
-    let svg = plot::bars(
+    if let Err(error) = bevworld_plot::bars_svg(
+        &results_dir().join("sensors.svg"),
         "Frames per second (2 cores)",
         "frames/s",
         &[
@@ -190,6 +189,7 @@ latency is the source's time per frame. Goal: >= 24 Hz (2x headroom over 12 Hz l
             ("synthetic generation".into(), synth.frames_per_second()),
         ],
         false,
-    );
-    let _ = std::fs::write(results_dir().join("sensors.svg"), svg);
+    ) {
+        eprintln!("{error}");
+    }
 }

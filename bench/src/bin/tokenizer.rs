@@ -49,13 +49,13 @@ fn main() {
     let weights = std::env::var_os("TOKENIZER_WEIGHTS").map(PathBuf::from);
     let model = match &weights {
         Some(path) => load_weights(&config, path, &device).expect("TOKENIZER_WEIGHTS"),
-        None => config.init(&device),
+        None => config.init_seeded(0, &device),
     };
     let frame = Dataset::open(
-        &root.join("../shared/data/nuscenes-sample"),
+        &bevworld_sensors::data_root().join("nuscenes-sample"),
         &DatasetOptions::default(),
     )
-    .expect("the nuScenes sample in ../shared/data")
+    .expect("the nuScenes sample in $BEVWORLD_DATA (default ../shared/data)")
     .read(0)
     .expect("frame 0");
     let mut points = Vec::new();

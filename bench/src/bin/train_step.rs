@@ -12,12 +12,12 @@
 
 use std::time::Instant;
 
-use bevworld_bench::{markdown_table, plot, results_dir, write_results};
+use bevworld_bench::{markdown_table, results_dir, write_results};
 use bevworld_tokenizer::FrameInputs;
 use bevworld_tokenizer::render::rays::sample_positions;
-use bevworld_tokenizer::train::data::{ensure_synthetic, load_frames};
-use bevworld_tokenizer::train::{TrainConfig, Trainer};
-use burn::optim::{AdamWConfig, GradientsParams};
+use bevworld_tokenizer_train::data::load_frames;
+use bevworld_tokenizer_train::{TrainConfig, Trainer};
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 
 const PHASES: [&str; 7] = [
@@ -39,14 +39,14 @@ fn main() {
         TrainConfig::from_yaml_file(&root.join(&config_name)).expect("training config");
     let mut set = config.data.train.clone();
     set.dir = root.join(&set.dir);
-    ensure_synthetic(&set).expect("synthetic training set");
+    set.ensure().expect("synthetic training set");
     let inputs = FrameInputs::new(&model_config);
     let frames = load_frames(&set.dir, &inputs, 4, |_, _| {}).expect("frames");
 
     // Phases of one frame, one thread.
     let device = Device::flex().autodiff();
-    let mut model = model_config.init(&device);
-    let mut optimizer = AdamWConfig::new().init();
+    let mut model = model_config.init_seeded(config.seed, &device);
+    let mut optimizer = config.optimizer.adamw();
     let depths = model_config.render.sample_depths();
     let placement = model_config.voxel_placement();
     let (warmup, steps) = (2, 10);
@@ -200,13 +200,13 @@ fn main() {
         .zip(totals)
         .map(|(name, s)| (name.to_string(), s / steps as f64 * 1e3))
         .collect();
-    let _ = std::fs::write(
-        results_dir().join("train_step.svg"),
-        plot::bars(
-            "Tokenizer training step: one frame's phases (one thread)",
-            "ms",
-            &bars,
-            false,
-        ),
-    );
+    if let Err(error) = bevworld_plot::bars_svg(
+        &results_dir().join("train_step.svg"),
+        "Tokenizer training step: one frame's phases (one thread)",
+        "ms",
+        &bars,
+        false,
+    ) {
+        eprintln!("{error}");
+    }
 }

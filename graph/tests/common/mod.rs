@@ -188,6 +188,15 @@ impl Sink for TextSink {
     }
 }
 
+/// A sink that takes anything and keeps nothing.
+pub struct Discard;
+
+impl Sink for Discard {
+    fn consume(&mut self, _inputs: &Inputs) -> Result<(), NodeError> {
+        Ok(())
+    }
+}
+
 #[derive(Deserialize, Serialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Flavour {
@@ -233,9 +242,9 @@ pub fn registry() -> Registry {
             .sync(SyncMode::Aligned),
         |_: NoParams| Ok(Node::Task(Box::new(Join))),
     );
-    registry.register(
+    registry.register_checked(
         KindSpec::sink("text_sink", "takes text").input(PortSpec::new::<String>("text")),
-        |params: TextParams| {
+        |params: &TextParams| {
             if params.scale <= 0.0 {
                 return Err(ParamError::field(
                     "scale",
@@ -243,8 +252,9 @@ pub fn registry() -> Registry {
                 )
                 .with_accepted("a number > 0"));
             }
-            Ok(Node::Sink(Box::new(TextSink)))
+            Ok(())
         },
+        |_: TextParams| Ok(Node::Sink(Box::new(TextSink))),
     );
     registry
 }

@@ -12,12 +12,14 @@ const PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 
 /// Tells mimalloc never to return freed memory to the kernel. For binaries whose global
 /// allocator is mimalloc; with another allocator it changes nothing.
+#[allow(unsafe_code)] // a C call into the allocator
 pub fn keep_freed_memory() {
     // SAFETY: sets one integer option; mimalloc reads options on every purge decision.
     unsafe { libmimalloc_sys::mi_option_set(PURGE_DELAY, -1) };
 }
 
 /// mimalloc's current purge delay in milliseconds (−1: never purge).
+#[allow(unsafe_code)] // a C call into the allocator
 pub fn purge_delay_ms() -> i64 {
     // SAFETY: reads one integer option.
     i64::from(unsafe { libmimalloc_sys::mi_option_get(PURGE_DELAY) })

@@ -13,9 +13,9 @@ use std::path::{Path, PathBuf};
 use burn::prelude::*;
 use thiserror::Error;
 
-use crate::frechet::{FeatureExtractor, frechet_distance_of_features};
+use crate::frechet::{FeatureExtractor, FrechetError, frechet_distance_of_features};
 use crate::inception::{INCEPTION_SIZE, InceptionV3, MIN_INPUT_SIZE, POOL3_FEATURES};
-use crate::torch_weights::{TorchLoadError, load_torch_state_dict};
+use bevworld_blocks::{TorchLoadError, load_torch_state_dict};
 
 /// The file FID's reference implementation uses, for messages.
 pub const PYTORCH_FID_WEIGHTS: &str = "pt_inception-2015-12-05-6726825d.pth";
@@ -46,7 +46,11 @@ pub enum FidError {
         examples: String,
     },
     #[error("FID: {0}")]
-    Statistics(String),
+    Statistics(#[from] FrechetError),
+    #[error("FID: an image has no pixels")]
+    EmptyImage,
+    #[error("FID: reading InceptionV3 features back: {0}")]
+    Readback(String),
 }
 
 /// Renames the PyTorch state dict's top-level modules to our fields (`Mixed_5b` -> `mixed_5b`).
@@ -140,7 +144,7 @@ impl InceptionExtractor {
             let mut input = Vec::with_capacity(chunk.len() * 3 * side * side);
             for image in chunk {
                 if image.width() == 0 || image.height() == 0 {
-                    return Err(FidError::Statistics("an image has no pixels".into()));
+                    return Err(FidError::EmptyImage);
                 }
                 input.extend(inception_input(image, side));
             }
@@ -152,7 +156,7 @@ impl InceptionExtractor {
             let values = features
                 .into_data()
                 .try_to_vec::<f32>()
-                .map_err(|e| FidError::Statistics(format!("reading features: {e:?}")))?;
+                .map_err(|e| FidError::Readback(format!("{e:?}")))?;
             rows.extend(
                 values
                     .chunks(POOL3_FEATURES)
@@ -168,8 +172,10 @@ impl InceptionExtractor {
         generated: &[image::RgbImage],
         reference: &[image::RgbImage],
     ) -> Result<f64, FidError> {
-        frechet_distance_of_features(&self.features_of(generated)?, &self.features_of(reference)?)
-            .map_err(FidError::Statistics)
+        Ok(frechet_distance_of_features(
+            &self.features_of(generated)?,
+            &self.features_of(reference)?,
+        )?)
     }
 }
 
@@ -182,10 +188,11 @@ impl FeatureExtractor for InceptionExtractor {
         POOL3_FEATURES
     }
 
-    fn features(&self, image: &image::RgbImage) -> Result<Vec<f64>, String> {
-        self.features_of(std::slice::from_ref(image))
-            .map_err(|e| e.to_string())?
+    type Error = FidError;
+
+    fn features(&self, image: &image::RgbImage) -> Result<Vec<f64>, FidError> {
+        self.features_of(std::slice::from_ref(image))?
             .pop()
-            .ok_or_else(|| "no features".to_string())
+            .ok_or(FidError::EmptyImage)
     }
 }

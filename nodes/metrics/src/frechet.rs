@@ -16,9 +16,46 @@
 
 /// Turns an image into a feature vector (InceptionV3 pool3 for FID).
 pub trait FeatureExtractor {
+    type Error: std::error::Error;
     fn name(&self) -> &str;
     fn dimension(&self) -> usize;
-    fn features(&self, image: &image::RgbImage) -> Result<Vec<f64>, String>;
+    fn features(&self, image: &image::RgbImage) -> Result<Vec<f64>, Self::Error>;
+}
+
+/// Why a Fréchet distance could not be computed.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum FrechetError {
+    #[error("need at least 2 feature vectors, got {0}")]
+    TooFew(usize),
+    #[error("feature vectors must be non-empty and of equal length")]
+    Ragged,
+    #[error("feature vectors contain non-finite values")]
+    NonFinite,
+    #[error("feature dimensions differ: {0} vs {1}")]
+    Dimensions(usize, usize),
+}
+
+/// Checks a feature set (at least two rows of one non-zero length, all finite) and returns its
+/// row count, dimension and mean.
+fn checked_mean(rows: &[Vec<f64>]) -> Result<(usize, usize, Vec<f64>), FrechetError> {
+    let n = rows.len();
+    if n < 2 {
+        return Err(FrechetError::TooFew(n));
+    }
+    let d = rows[0].len();
+    if d == 0 || rows.iter().any(|r| r.len() != d) {
+        return Err(FrechetError::Ragged);
+    }
+    if rows.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(FrechetError::NonFinite);
+    }
+    let mut mean = vec![0.0; d];
+    for row in rows {
+        for (m, v) in mean.iter_mut().zip(row) {
+            *m += v / n as f64;
+        }
+    }
+    Ok((n, d, mean))
 }
 
 /// Mean and covariance of a feature set.
@@ -36,24 +73,8 @@ impl GaussianStats {
     }
 
     /// Fits rows of equal length; needs at least two.
-    pub fn fit(rows: &[Vec<f64>]) -> Result<Self, String> {
-        let n = rows.len();
-        if n < 2 {
-            return Err(format!("need at least 2 feature vectors, got {n}"));
-        }
-        let d = rows[0].len();
-        if d == 0 || rows.iter().any(|r| r.len() != d) {
-            return Err("feature vectors must be non-empty and of equal length".into());
-        }
-        if rows.iter().flatten().any(|v| !v.is_finite()) {
-            return Err("feature vectors contain non-finite values".into());
-        }
-        let mut mean = vec![0.0; d];
-        for row in rows {
-            for (m, v) in mean.iter_mut().zip(row) {
-                *m += v / n as f64;
-            }
-        }
+    pub fn fit(rows: &[Vec<f64>]) -> Result<Self, FrechetError> {
+        let (n, d, mean) = checked_mean(rows)?;
         let mut covariance = vec![0.0; d * d];
         for row in rows {
             for i in 0..d {
@@ -163,13 +184,10 @@ fn matmul(a: &[f64], b: &[f64], d: usize) -> Vec<f64> {
 }
 
 /// The squared Fréchet distance between two fitted Gaussians.
-pub fn frechet_distance(a: &GaussianStats, b: &GaussianStats) -> Result<f64, String> {
+pub fn frechet_distance(a: &GaussianStats, b: &GaussianStats) -> Result<f64, FrechetError> {
     let d = a.dimension();
     if b.dimension() != d {
-        return Err(format!(
-            "feature dimensions differ: {d} vs {}",
-            b.dimension()
-        ));
+        return Err(FrechetError::Dimensions(d, b.dimension()));
     }
     let mean_term: f64 = a
         .mean
@@ -190,24 +208,8 @@ pub fn frechet_distance(a: &GaussianStats, b: &GaussianStats) -> Result<f64, Str
 }
 
 /// Centred samples over `√(n − 1)`, row-major `[n, d]`, and their mean: `S = Aᵀ A` for these rows.
-fn centred_scaled(rows: &[Vec<f64>]) -> Result<(Vec<f64>, Vec<f64>), String> {
-    let n = rows.len();
-    if n < 2 {
-        return Err(format!("need at least 2 feature vectors, got {n}"));
-    }
-    let d = rows[0].len();
-    if d == 0 || rows.iter().any(|r| r.len() != d) {
-        return Err("feature vectors must be non-empty and of equal length".into());
-    }
-    if rows.iter().flatten().any(|v| !v.is_finite()) {
-        return Err("feature vectors contain non-finite values".into());
-    }
-    let mut mean = vec![0.0; d];
-    for row in rows {
-        for (m, v) in mean.iter_mut().zip(row) {
-            *m += v / n as f64;
-        }
-    }
+fn centred_scaled(rows: &[Vec<f64>]) -> Result<(Vec<f64>, Vec<f64>), FrechetError> {
+    let (n, d, mean) = checked_mean(rows)?;
     let scale = 1.0 / ((n - 1) as f64).sqrt();
     let mut a = Vec::with_capacity(n * d);
     for row in rows {
@@ -219,14 +221,11 @@ fn centred_scaled(rows: &[Vec<f64>]) -> Result<(Vec<f64>, Vec<f64>), String> {
 /// The squared Fréchet distance between the Gaussians of two feature sets (rows of equal
 /// length, at least two per set). Exact either way; the low-rank route is taken when a set has
 /// fewer samples than dimensions.
-pub fn frechet_distance_of_features(a: &[Vec<f64>], b: &[Vec<f64>]) -> Result<f64, String> {
+pub fn frechet_distance_of_features(a: &[Vec<f64>], b: &[Vec<f64>]) -> Result<f64, FrechetError> {
     let (n1, n2) = (a.len(), b.len());
     let d = a.first().map_or(0, Vec::len);
     if b.first().map_or(0, Vec::len) != d {
-        return Err(format!(
-            "feature dimensions differ: {d} vs {}",
-            b.first().map_or(0, Vec::len)
-        ));
+        return Err(FrechetError::Dimensions(d, b.first().map_or(0, Vec::len)));
     }
     if n1.min(n2) >= d {
         return frechet_distance(&GaussianStats::fit(a)?, &GaussianStats::fit(b)?);

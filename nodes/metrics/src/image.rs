@@ -1,5 +1,34 @@
 //! Image metrics: PSNR with an explicit data range, and SSIM (Wang et al. 2004).
 
+/// Why two images could not be compared.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ImageMetricError {
+    #[error("image data has {values} values, expected {channels}x{height}x{width}")]
+    Length {
+        values: usize,
+        channels: usize,
+        height: usize,
+        width: usize,
+    },
+    #[error("images differ in shape: {a:?} vs {b:?} (channels, height, width)")]
+    Shape {
+        a: (usize, usize, usize),
+        b: (usize, usize, usize),
+    },
+    #[error("data range must be a finite number > 0, got {0}")]
+    DataRange(f64),
+    #[error("empty images")]
+    Empty,
+    #[error("images contain non-finite values")]
+    NonFinite,
+    #[error("SSIM needs images of at least {window}x{window}, got {width}x{height}")]
+    TooSmall {
+        window: usize,
+        width: usize,
+        height: usize,
+    },
+}
+
 /// An image as planar f32 channels, `[C, H, W]`.
 #[derive(Clone, Debug)]
 pub struct Planes<'a> {
@@ -10,21 +39,21 @@ pub struct Planes<'a> {
 }
 
 impl Planes<'_> {
-    fn check(&self, other: &Planes) -> Result<(), String> {
+    fn check(&self, other: &Planes) -> Result<(), ImageMetricError> {
         if self.data.len() != self.channels * self.height * self.width {
-            return Err(format!(
-                "image data has {} values, expected {}x{}x{}",
-                self.data.len(),
-                self.channels,
-                self.height,
-                self.width
-            ));
+            return Err(ImageMetricError::Length {
+                values: self.data.len(),
+                channels: self.channels,
+                height: self.height,
+                width: self.width,
+            });
         }
-        if (self.channels, self.height, self.width) != (other.channels, other.height, other.width) {
-            return Err(format!(
-                "images differ in shape: {}x{}x{} vs {}x{}x{}",
-                self.channels, self.height, self.width, other.channels, other.height, other.width
-            ));
+        let (a, b) = (
+            (self.channels, self.height, self.width),
+            (other.channels, other.height, other.width),
+        );
+        if a != b {
+            return Err(ImageMetricError::Shape { a, b });
         }
         Ok(())
     }
@@ -32,16 +61,14 @@ impl Planes<'_> {
 
 /// Peak signal-to-noise ratio in dB for values spanning `data_range` (255 for 8-bit, 1 for
 /// [0, 1]). Identical images give `f64::INFINITY`, never NaN.
-pub fn psnr(a: &Planes, b: &Planes, data_range: f64) -> Result<f64, String> {
+pub fn psnr(a: &Planes, b: &Planes, data_range: f64) -> Result<f64, ImageMetricError> {
     a.check(b)?;
     b.check(a)?;
     if !(data_range > 0.0 && data_range.is_finite()) {
-        return Err(format!(
-            "data range must be a finite number > 0, got {data_range}"
-        ));
+        return Err(ImageMetricError::DataRange(data_range));
     }
     if a.data.is_empty() {
-        return Err("empty images".into());
+        return Err(ImageMetricError::Empty);
     }
     let mse = a
         .data
@@ -51,7 +78,7 @@ pub fn psnr(a: &Planes, b: &Planes, data_range: f64) -> Result<f64, String> {
         .sum::<f64>()
         / a.data.len() as f64;
     if !mse.is_finite() {
-        return Err("images contain non-finite values".into());
+        return Err(ImageMetricError::NonFinite);
     }
     if mse == 0.0 {
         return Ok(f64::INFINITY);
@@ -109,19 +136,18 @@ fn filter(plane: &[f64], height: usize, width: usize, window: &[f64; WINDOW]) ->
 /// Mean SSIM over channels, with an 11x11 Gaussian window (sigma 1.5), K1 = 0.01, K2 = 0.03,
 /// averaged over the valid region, as `skimage.metrics.structural_similarity` with
 /// `gaussian_weights=True, use_sample_covariance=False` computes it.
-pub fn ssim(a: &Planes, b: &Planes, data_range: f64) -> Result<f64, String> {
+pub fn ssim(a: &Planes, b: &Planes, data_range: f64) -> Result<f64, ImageMetricError> {
     a.check(b)?;
     b.check(a)?;
     if a.height < WINDOW || a.width < WINDOW {
-        return Err(format!(
-            "SSIM needs images of at least {WINDOW}x{WINDOW}, got {}x{}",
-            a.width, a.height
-        ));
+        return Err(ImageMetricError::TooSmall {
+            window: WINDOW,
+            width: a.width,
+            height: a.height,
+        });
     }
     if !(data_range > 0.0 && data_range.is_finite()) {
-        return Err(format!(
-            "data range must be a finite number > 0, got {data_range}"
-        ));
+        return Err(ImageMetricError::DataRange(data_range));
     }
     let window = gaussian_window();
     let (c1, c2) = ((0.01 * data_range).powi(2), (0.03 * data_range).powi(2));

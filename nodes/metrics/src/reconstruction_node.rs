@@ -18,7 +18,7 @@ use image::imageops::FilterType;
 use serde::{Deserialize, Serialize};
 
 use crate::chamfer::{Roi, chamfer_in_roi};
-use crate::image::{Planes, psnr, rgb_planes, ssim};
+use crate::image::{ImageMetricError, Planes, psnr, rgb_planes, ssim};
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -44,13 +44,28 @@ pub struct FrameScores {
     pub chamfer_m2: f64,
 }
 
+/// Why a reconstruction could not be scored.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ScoreError {
+    #[error("rendered image '{image}' has no camera of that name in frame {frame}")]
+    NoSuchCamera { image: String, frame: String },
+    #[error("no rendered images for frame {frame}")]
+    NoImages { frame: String },
+    #[error("frame {frame}, image '{image}': {source}")]
+    Image {
+        frame: String,
+        image: String,
+        source: ImageMetricError,
+    },
+}
+
 /// Scores a reconstruction against its input frame.
 pub fn score_frame(
     frame: &SensorFrame,
     images: &ImageSet,
     lidar: &PointCloud,
     roi: &Roi,
-) -> Result<FrameScores, String> {
+) -> Result<FrameScores, ScoreError> {
     let (mut psnr_sum, mut ssim_sum, mut count) = (0.0, 0.0, 0usize);
     for rendered in &images.images {
         let Some(input) = frame
@@ -58,10 +73,10 @@ pub fn score_frame(
             .iter()
             .find(|c| c.channel.name() == rendered.name)
         else {
-            return Err(format!(
-                "rendered image '{}' has no camera of that name in frame {}",
-                rendered.name, frame.frame_token
-            ));
+            return Err(ScoreError::NoSuchCamera {
+                image: rendered.name.clone(),
+                frame: frame.frame_token.clone(),
+            });
         };
         let (w, h) = rendered.image.dimensions();
         let resized = image::imageops::resize(input.image.as_ref(), w, h, FilterType::Triangle);
@@ -74,15 +89,19 @@ pub fn score_frame(
         };
         let (pa, pb) = (planes(&a), planes(&b));
         // Identical images have infinite PSNR; cap at 100 dB so means stay finite.
-        psnr_sum += psnr(&pa, &pb, 255.0)?.min(100.0);
-        ssim_sum += ssim(&pa, &pb, 255.0)?;
+        let image_error = |source| ScoreError::Image {
+            frame: frame.frame_token.clone(),
+            image: rendered.name.clone(),
+            source,
+        };
+        psnr_sum += psnr(&pa, &pb, 255.0).map_err(image_error)?.min(100.0);
+        ssim_sum += ssim(&pa, &pb, 255.0).map_err(image_error)?;
         count += 1;
     }
     if count == 0 {
-        return Err(format!(
-            "no rendered images for frame {}",
-            frame.frame_token
-        ));
+        return Err(ScoreError::NoImages {
+            frame: frame.frame_token.clone(),
+        });
     }
     let to_f64 = |points: Vec<[f32; 3]>| -> Vec<[f64; 3]> {
         points
@@ -114,7 +133,8 @@ impl Sink for ReconstructionMetrics {
         let frame = inputs.get::<SensorFrame>("frame")?;
         let images = inputs.get::<ImageSet>("images")?;
         let lidar = inputs.get::<PointCloud>("lidar")?;
-        let scores = score_frame(frame, images, lidar, &self.roi).map_err(NodeError::item)?;
+        let scores =
+            score_frame(frame, images, lidar, &self.roi).map_err(|e| NodeError::item_from(&e))?;
         tracing::info!(
             frame = %scores.frame_token,
             psnr_db = format!("{:.2}", scores.psnr_db),
@@ -160,8 +180,15 @@ impl Sink for ReconstructionMetrics {
     }
 }
 
+fn roi_of(params: &ReconstructionMetricsParams) -> Result<Roi, ParamError> {
+    Roi::preset(&params.roi).ok_or_else(|| {
+        ParamError::field("roi", format!("unknown preset '{}'", params.roi))
+            .with_accepted("4docc, vidar")
+    })
+}
+
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::sink(
             "reconstruction_metrics",
             "camera PSNR/SSIM and LiDAR Chamfer of a rendered frame against its input frame",
@@ -169,11 +196,9 @@ pub fn register(registry: &mut Registry) {
         .input(PortSpec::new::<SensorFrame>("frame"))
         .input(PortSpec::new::<ImageSet>("images"))
         .input(PortSpec::new::<PointCloud>("lidar")),
+        |params: &ReconstructionMetricsParams| roi_of(params).map(|_| ()),
         |params: ReconstructionMetricsParams| {
-            let roi = Roi::preset(&params.roi).ok_or_else(|| {
-                ParamError::field("roi", format!("unknown preset '{}'", params.roi))
-                    .with_accepted("4docc, vidar")
-            })?;
+            let roi = roi_of(&params)?;
             Ok(Node::Sink(Box::new(ReconstructionMetrics {
                 roi,
                 csv: params.csv,

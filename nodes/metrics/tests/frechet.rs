@@ -84,6 +84,7 @@ fn fitting_matches_numpy_cov_and_rejects_bad_input() {
     assert!(
         GaussianStats::fit(&rows[..1])
             .unwrap_err()
+            .to_string()
             .contains("at least 2")
     );
     assert!(GaussianStats::fit(&[vec![1.0], vec![1.0, 2.0]]).is_err());
@@ -92,6 +93,7 @@ fn fitting_matches_numpy_cov_and_rejects_bad_input() {
     assert!(
         frechet_distance(&fitted, &other)
             .unwrap_err()
+            .to_string()
             .contains("dimensions differ")
     );
 }

@@ -1,5 +1,8 @@
 //! PointPillars pillarization: points in the ego frame to the non-empty pillars of a BEV grid.
 
+// Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
+#![cfg_attr(not(test), warn(clippy::unwrap_used))]
+
 pub mod bev_stats;
 pub mod dense;
 pub mod node;

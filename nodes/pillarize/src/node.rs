@@ -88,18 +88,21 @@ impl Task for PillarizeNode {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::task("pillarize", "groups a sweep's points (ego frame) into the non-empty PointPillars pillars of a BEV grid")
             .input(PortSpec::new::<SensorFrame>("frame"))
             .output(PortSpec::new::<Pillars>("pillars")),
-        |params: PillarizeParams| {
-            params.grid.validate().map_err(|message| ParamError::field("grid", message).with_accepted("finite ranges [min, max) that pillar_size divides"))?;
+        |params: &PillarizeParams| {
+            params.grid.validate().map_err(|error| ParamError::field("grid", error.to_string()).with_accepted("finite ranges [min, max) that pillar_size divides"))?;
             if params.max_points_per_pillar == 0 || params.max_points_per_pillar > 4096 {
                 return Err(ParamError::field("max_points_per_pillar", format!("{} is out of range", params.max_points_per_pillar)).with_accepted("1..=4096"));
             }
             if params.max_pillars == 0 {
                 return Err(ParamError::field("max_pillars", "must be at least 1").with_accepted("an integer >= 1"));
             }
+            Ok(())
+        },
+        |params: PillarizeParams| {
             let limits = Limits { max_points_per_pillar: params.max_points_per_pillar, max_pillars: params.max_pillars };
             Ok(Node::Task(Box::new(PillarizeNode {
                 pillarizer: Pillarizer::new(params.grid, limits),

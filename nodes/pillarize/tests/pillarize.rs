@@ -240,12 +240,23 @@ fn the_grid_default_is_the_papers() {
         pillar_size: 0.7,
         ..grid
     };
-    assert!(bad.validate().unwrap_err().contains("does not divide"));
+    assert!(
+        bad.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("does not divide")
+    );
     let reversed = PillarGrid {
         x_range: [80.0, -80.0],
         ..grid
     };
-    assert!(reversed.validate().unwrap_err().contains("x_range"));
+    assert!(
+        reversed
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("x_range")
+    );
 }
 
 #[test]

@@ -39,11 +39,19 @@ fn draw(
 ) -> Result<(), Box<dyn std::error::Error>> {
     root.fill(&WHITE)?;
     let drawable = |v: f64| v.is_finite() && (!log_scale || v > 0.0);
-    let shown: Vec<f64> = items.iter().map(|(_, v)| *v).filter(|v| drawable(*v)).collect();
+    let shown: Vec<f64> = items
+        .iter()
+        .map(|(_, v)| *v)
+        .filter(|v| drawable(*v))
+        .collect();
     let max = shown.iter().copied().fold(f64::MIN_POSITIVE, f64::max);
     let min = shown.iter().copied().fold(max, f64::min);
     let rows = items.len().max(1) as i32;
-    let longest = items.iter().map(|(l, _)| l.chars().count()).max().unwrap_or(8) as u32;
+    let longest = items
+        .iter()
+        .map(|(l, _)| l.chars().count())
+        .max()
+        .unwrap_or(8) as u32;
     // Row 0 is drawn at the top, as the table beside the plot lists it.
     let row_of = |index: usize| rows - 1 - index as i32;
     let label_of = |value: &SegmentValue<i32>| match value {
@@ -93,14 +101,16 @@ fn draw(
                 Text::new(
                     format_value(v),
                     ($gap(v), SegmentValue::CenterOf(row)),
-                    TextStyle::from((FAMILY, 13).into_font()).pos(Pos::new(HPos::Left, VPos::Center)),
+                    TextStyle::from((FAMILY, 13).into_font())
+                        .pos(Pos::new(HPos::Left, VPos::Center)),
                 )
             }))?;
         }};
     }
     if log_scale {
         let floor = min / 2.0;
-        let chart = builder.build_cartesian_2d((floor..max * 4.0).log_scale(), (0..rows).into_segmented())?;
+        let chart = builder
+            .build_cartesian_2d((floor..max * 4.0).log_scale(), (0..rows).into_segmented())?;
         finish!(chart, floor, |v: f64| v * 1.06);
     } else {
         let chart = builder.build_cartesian_2d(0f64..max * 1.22, (0..rows).into_segmented())?;

@@ -69,7 +69,11 @@ fn drawable(panel: &Panel) -> Vec<Vec<(f64, f64)>> {
 /// A range around `lo..hi` that is never empty: a flat series gets a band around its value.
 pub(crate) fn padded(lo: f64, hi: f64, log: bool) -> Range<f64> {
     if log {
-        let (lo, hi) = if hi > lo { (lo, hi) } else { (lo / 2.0, hi * 2.0) };
+        let (lo, hi) = if hi > lo {
+            (lo, hi)
+        } else {
+            (lo / 2.0, hi * 2.0)
+        };
         lo / 1.15..hi * 1.15
     } else if hi > lo {
         let margin = (hi - lo) * 0.06;
@@ -130,7 +134,10 @@ fn draw_panel(panel: &Panel, area: &Area) -> DrawResult {
 /// An axis tick: whole numbers without decimals, others to three significant digits.
 pub(crate) fn tick(value: f64) -> String {
     let magnitude = value.abs();
-    if value == 0.0 || (magnitude >= 1.0 && (value - value.round()).abs() < 1e-9) || magnitude >= 1e4 {
+    if value == 0.0
+        || (magnitude >= 1.0 && (value - value.round()).abs() < 1e-9)
+        || magnitude >= 1e4
+    {
         format!("{value:.0}")
     } else {
         let decimals = (2 - magnitude.log10().floor() as i32).clamp(0, 9) as usize;
@@ -167,11 +174,14 @@ where
         if points.len() <= 40 {
             chart.draw_series(points.iter().map(|&p| Circle::new(p, 3, colour.filled())))?;
         }
-        let drawn = chart.draw_series(LineSeries::new(points.iter().copied(), colour.stroke_width(2)))?;
+        let drawn = chart.draw_series(LineSeries::new(
+            points.iter().copied(),
+            colour.stroke_width(2),
+        ))?;
         if panel.series.len() > 1 {
-            drawn
-                .label(series.label)
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour.stroke_width(2)));
+            drawn.label(series.label).legend(move |(x, y)| {
+                PathElement::new([(x, y), (x + 16, y)], colour.stroke_width(2))
+            });
         }
     }
     if panel.series.len() > 1 {

@@ -5,6 +5,9 @@
 //! licence is beside it in `fonts/`), so a chart looks the same on every machine and needs no
 //! system font library.
 
+// Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
+#![cfg_attr(not(test), warn(clippy::unwrap_used))]
+
 mod bars;
 mod curves;
 mod font;
@@ -14,7 +17,7 @@ mod top_down;
 pub use bars::bars_svg;
 pub use curves::{Panel, Series, panels_png};
 pub use scatter::{Labelled, Reference, ScatterPlot, scatter_png};
-pub use top_down::{Cloud, top_down};
+pub use top_down::{Cloud, caption, top_down};
 
 use std::path::{Path, PathBuf};
 

@@ -60,11 +60,26 @@ fn draw(
         .collect();
     let references: Vec<&Reference> = plot.references.iter().filter(|r| r.y.is_finite()).collect();
     let xs = points.iter().map(|p| p.x);
-    let ys = points.iter().map(|p| p.y).chain(references.iter().map(|r| r.y));
-    let (x_lo, x_hi) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
-    let (y_lo, y_hi) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
-    let (x_lo, x_hi) = if x_lo.is_finite() { (x_lo, x_hi) } else { (1.0, 10.0) };
-    let (y_lo, y_hi) = if y_lo.is_finite() { (y_lo, y_hi) } else { (0.0, 1.0) };
+    let ys = points
+        .iter()
+        .map(|p| p.y)
+        .chain(references.iter().map(|r| r.y));
+    let (x_lo, x_hi) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+        (a.min(v), b.max(v))
+    });
+    let (y_lo, y_hi) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+        (a.min(v), b.max(v))
+    });
+    let (x_lo, x_hi) = if x_lo.is_finite() {
+        (x_lo, x_hi)
+    } else {
+        (1.0, 10.0)
+    };
+    let (y_lo, y_hi) = if y_lo.is_finite() {
+        (y_lo, y_hi)
+    } else {
+        (0.0, 1.0)
+    };
     let y = padded(y_lo.min(0.0), y_hi, false);
     let mut builder = ChartBuilder::on(root);
     builder
@@ -95,17 +110,25 @@ fn draw(
                 chart.draw_series(std::iter::once(Text::new(
                     reference.label.to_string(),
                     (left, reference.y),
-                    (FAMILY, 12).into_font().color(&colour).pos(Pos::new(HPos::Left, VPos::Bottom)),
+                    (FAMILY, 12)
+                        .into_font()
+                        .color(&colour)
+                        .pos(Pos::new(HPos::Left, VPos::Bottom)),
                 )))?;
             }
             let [r, g, b] = PALETTE[0];
             let colour = RGBColor(r, g, b);
-            chart.draw_series(points.iter().map(|p| Circle::new((p.x, p.y), 4, colour.filled())))?;
+            chart.draw_series(
+                points
+                    .iter()
+                    .map(|p| Circle::new((p.x, p.y), 4, colour.filled())),
+            )?;
             chart.draw_series(points.iter().map(|p| {
                 Text::new(
                     p.label.to_string(),
                     (p.x, p.y),
-                    TextStyle::from((FAMILY, 12).into_font()).pos(Pos::new(HPos::Left, VPos::Bottom)),
+                    TextStyle::from((FAMILY, 12).into_font())
+                        .pos(Pos::new(HPos::Left, VPos::Bottom)),
                 )
             }))?;
         }};

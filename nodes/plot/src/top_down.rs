@@ -77,3 +77,24 @@ fn draw(
     }
     Ok(())
 }
+
+/// A `width × height` white strip with `text` centred in it, to label the panels of a
+/// composed figure.
+pub fn caption(width: u32, height: u32, text: &str) -> image::RgbImage {
+    ensure_registered();
+    let mut buffer = vec![0u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
+        let _ = root.fill(&WHITE);
+        let style = TextStyle::from((FAMILY, (height as f64 * 0.6).max(10.0)).into_font()).pos(
+            plotters::style::text_anchor::Pos::new(
+                plotters::style::text_anchor::HPos::Center,
+                plotters::style::text_anchor::VPos::Center,
+            ),
+        );
+        let _ = root.draw_text(text, &style, (width as i32 / 2, height as i32 / 2));
+        let _ = root.present();
+    }
+    image::RgbImage::from_raw(width, height, buffer)
+        .unwrap_or_else(|| image::RgbImage::new(width, height))
+}

@@ -18,7 +18,13 @@ fn coloured_pixels(image: &image::RgbImage, colour: [u8; 3]) -> Vec<(u32, u32)> 
 fn panels_draw_each_series_in_its_panel_and_skip_what_a_log_axis_cannot_show() {
     let dir = tempfile::tempdir().expect("dir");
     let path = dir.path().join("curves.png");
-    let loss = [(1.0, 2.0), (2.0, 1.0), (3.0, 0.0), (4.0, f64::NAN), (5.0, 0.25)];
+    let loss = [
+        (1.0, 2.0),
+        (2.0, 1.0),
+        (3.0, 0.0),
+        (4.0, f64::NAN),
+        (5.0, 0.25),
+    ];
     let psnr = [(1.0, 18.0), (5.0, 24.0)];
     panels_png(
         &path,
@@ -27,13 +33,19 @@ fn panels_draw_each_series_in_its_panel_and_skip_what_a_log_axis_cannot_show() {
                 title: "training loss",
                 x_label: "step",
                 log_y: true,
-                series: vec![Series { label: "loss", points: &loss }],
+                series: vec![Series {
+                    label: "loss",
+                    points: &loss,
+                }],
             },
             Panel {
                 title: "PSNR (dB)",
                 x_label: "step",
                 log_y: false,
-                series: vec![Series { label: "val", points: &psnr }],
+                series: vec![Series {
+                    label: "val",
+                    points: &psnr,
+                }],
             },
             Panel {
                 title: "Chamfer (m²)",
@@ -48,7 +60,11 @@ fn panels_draw_each_series_in_its_panel_and_skip_what_a_log_axis_cannot_show() {
     assert_eq!(image.width(), 3 * 420);
     assert_eq!(image.height(), 360);
     let line = coloured_pixels(&image, PALETTE[0]);
-    assert!(line.len() > 50, "the series were drawn: {} pixels", line.len());
+    assert!(
+        line.len() > 50,
+        "the series were drawn: {} pixels",
+        line.len()
+    );
     // Both first series share the first colour: one in each of the first two panels, none in
     // the empty third.
     assert!(line.iter().any(|(x, _)| *x < 420));
@@ -72,7 +88,10 @@ fn a_flat_series_still_gets_a_range() {
             title: "flat",
             x_label: "step",
             log_y: true,
-            series: vec![Series { label: "a", points: &flat }],
+            series: vec![Series {
+                label: "a",
+                points: &flat,
+            }],
         }],
     )
     .expect("a flat series is drawn");
@@ -92,7 +111,15 @@ fn bars_name_every_row_and_value_and_leave_out_what_cannot_be_drawn() {
     ];
     bars_svg(&path, "throughput", "messages/s", &items, true).expect("svg");
     let svg = std::fs::read_to_string(&path).expect("read");
-    for text in ["throughput", "bare channel", "runtime", "broken", "zero", "5.20M", "960.0k"] {
+    for text in [
+        "throughput",
+        "bare channel",
+        "runtime",
+        "broken",
+        "zero",
+        "5.20M",
+        "960.0k",
+    ] {
         assert!(svg.contains(text), "{text} missing from the SVG");
     }
     assert!(svg.contains("messages/s (log scale)"));
@@ -113,17 +140,35 @@ fn a_scatter_writes_its_points_and_reference_lines() {
             y_label: "Chamfer at 3 s (m²)",
             log_x: true,
             points: vec![
-                Labelled { label: "1 step", x: 40.0, y: 1.2 },
-                Labelled { label: "50 steps", x: 2000.0, y: 1.0 },
-                Labelled { label: "bad", x: -1.0, y: 1.0 },
+                Labelled {
+                    label: "1 step",
+                    x: 40.0,
+                    y: 1.2,
+                },
+                Labelled {
+                    label: "50 steps",
+                    x: 2000.0,
+                    y: 1.0,
+                },
+                Labelled {
+                    label: "bad",
+                    x: -1.0,
+                    y: 1.0,
+                },
             ],
-            references: vec![Reference { label: "copy_last", y: 2.3 }],
+            references: vec![Reference {
+                label: "copy_last",
+                y: 2.3,
+            }],
         },
     )
     .expect("scatter");
     let image = image::open(&path).expect("png").to_rgb8();
     assert!(!coloured_pixels(&image, PALETTE[0]).is_empty(), "points");
-    assert!(!coloured_pixels(&image, PALETTE[1]).is_empty(), "reference line");
+    assert!(
+        !coloured_pixels(&image, PALETTE[1]).is_empty(),
+        "reference line"
+    );
 }
 
 #[test]
@@ -135,8 +180,16 @@ fn top_down_puts_forward_up_and_left_to_the_left() {
         40.0,
         "sweep",
         &[
-            Cloud { label: "ahead", points: &ahead, colour: [255, 0, 0] },
-            Cloud { label: "left", points: &left, colour: [0, 0, 255] },
+            Cloud {
+                label: "ahead",
+                points: &ahead,
+                colour: [255, 0, 0],
+            },
+            Cloud {
+                label: "left",
+                points: &left,
+                colour: [0, 0, 255],
+            },
         ],
     );
     let red = coloured_pixels(&image, [255, 0, 0]);
@@ -156,5 +209,8 @@ fn top_down_puts_forward_up_and_left_to_the_left() {
     let (red_x, red_y) = centre_of(&red);
     let (blue_x, blue_y) = centre_of(&blue);
     assert!(red_y < blue_y - 50.0, "ahead is above: {red_y} vs {blue_y}");
-    assert!(blue_x < red_x - 50.0, "left is to the left: {blue_x} vs {red_x}");
+    assert!(
+        blue_x < red_x - 50.0,
+        "left is to the left: {blue_x} vs {red_x}"
+    );
 }

@@ -88,22 +88,48 @@ fn default_size() -> String {
 }
 
 /// Parses `WxH`.
-pub fn parse_size(text: &str) -> Result<(u32, u32), String> {
+pub fn parse_size(text: &str) -> Result<(u32, u32), SizeError> {
     let (w, h) = text
         .split_once(['x', 'X'])
-        .ok_or_else(|| format!("'{text}' is not WxH"))?;
+        .ok_or_else(|| SizeError::Form(text.to_string()))?;
     let w: u32 = w
         .trim()
         .parse()
-        .map_err(|_| format!("'{w}' is not a width"))?;
+        .map_err(|_| SizeError::Width(w.to_string()))?;
     let h: u32 = h
         .trim()
         .parse()
-        .map_err(|_| format!("'{h}' is not a height"))?;
+        .map_err(|_| SizeError::Height(h.to_string()))?;
     if w < 16 || h < 16 || w > 8192 || h > 8192 {
-        return Err(format!("{w}x{h} is outside 16..8192"));
+        return Err(SizeError::Range(w, h));
     }
     Ok((w, h))
+}
+
+/// A `WxH` size that cannot be used.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SizeError {
+    #[error("'{0}' is not WxH")]
+    Form(String),
+    #[error("'{0}' is not a width")]
+    Width(String),
+    #[error("'{0}' is not a height")]
+    Height(String),
+    #[error("{0}x{1} is outside 16..8192")]
+    Range(u32, u32),
+}
+
+/// An `I/N` shard that cannot be used.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ShardError {
+    #[error("'{0}' is not I/N")]
+    Form(String),
+    #[error("'{0}' is not a shard index")]
+    Index(String),
+    #[error("'{0}' is not a shard count")]
+    Count(String),
+    #[error("shard {0}/{1} needs 0 <= I < N")]
+    Range(usize, usize),
 }
 
 pub struct DatasetSource {
@@ -114,11 +140,12 @@ pub struct DatasetSource {
     prefetch: Option<(usize, JoinHandle<crate::error::Result<FetchedFrame>>)>,
 }
 
-impl DatasetSource {
-    pub fn new(params: DatasetSourceParams) -> Result<Self, ParamError> {
+impl DatasetSourceParams {
+    /// The parameters' own consistency, found without opening the dataset.
+    pub fn check(params: &Self) -> Result<(), ParamError> {
         if let Some(shard) = &params.shard {
-            parse_shard(shard).map_err(|message| {
-                ParamError::field("shard", message).with_accepted("I/N with 0 <= I < N")
+            parse_shard(shard).map_err(|error| {
+                ParamError::field("shard", error.to_string()).with_accepted("I/N with 0 <= I < N")
             })?;
         }
         if params.repeat == 0 {
@@ -134,8 +161,8 @@ impl DatasetSource {
                 return Err(ParamError::field("generate", "dir is empty")
                     .with_accepted("dir: the folder to make, e.g. out/synth-demo"));
             }
-            parse_size(&generate.camera_size).map_err(|message| {
-                ParamError::field("generate", message)
+            parse_size(&generate.camera_size).map_err(|error| {
+                ParamError::field("generate", error.to_string())
                     .with_accepted("camera_size: WxH, e.g. 400x224")
             })?;
             if !(generate.seconds > 0.0 && generate.seconds <= 600.0) || generate.scenes == 0 {
@@ -145,6 +172,13 @@ impl DatasetSource {
                 ));
             }
         }
+        Ok(())
+    }
+}
+
+impl DatasetSource {
+    pub fn new(params: DatasetSourceParams) -> Result<Self, ParamError> {
+        DatasetSourceParams::check(&params)?;
         Ok(Self {
             params,
             dataset: None,
@@ -156,7 +190,7 @@ impl DatasetSource {
 
     fn generate(&self, generate: &GenerateParams) -> Result<(), NodeError> {
         let (camera_width, camera_height) =
-            parse_size(&generate.camera_size).map_err(NodeError::fatal)?;
+            parse_size(&generate.camera_size).map_err(|e| NodeError::fatal_from(&e))?;
         let config = crate::synth::SynthConfig {
             seed: generate.seed,
             scenes: generate.scenes,
@@ -195,20 +229,20 @@ fn same_folder(a: &Path, b: &Path) -> bool {
 }
 
 /// Parses `i/n`.
-pub fn parse_shard(text: &str) -> Result<(usize, usize), String> {
+pub fn parse_shard(text: &str) -> Result<(usize, usize), ShardError> {
     let (i, n) = text
         .split_once('/')
-        .ok_or_else(|| format!("'{text}' is not I/N"))?;
+        .ok_or_else(|| ShardError::Form(text.to_string()))?;
     let i: usize = i
         .trim()
         .parse()
-        .map_err(|_| format!("'{i}' is not a shard index"))?;
+        .map_err(|_| ShardError::Index(i.to_string()))?;
     let n: usize = n
         .trim()
         .parse()
-        .map_err(|_| format!("'{n}' is not a shard count"))?;
+        .map_err(|_| ShardError::Count(n.to_string()))?;
     if n == 0 || i >= n {
-        return Err(format!("shard {i}/{n} needs 0 <= I < N"));
+        return Err(ShardError::Range(i, n));
     }
     Ok((i, n))
 }
@@ -244,7 +278,7 @@ impl Source for DatasetSource {
             .as_deref()
             .map(parse_shard)
             .transpose()
-            .map_err(NodeError::fatal)?;
+            .map_err(|e| NodeError::fatal_from(&e))?;
         let scene_names = dataset.scene_names();
         let mut scene_order: Vec<&str> = Vec::new();
         for name in &scene_names {
@@ -309,7 +343,7 @@ impl Source for DatasetSource {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::source(
             "dataset_source",
             "replays a nuScenes-layout, synthetic or KITTI odometry dataset as sensor frames",
@@ -317,6 +351,7 @@ pub fn register(registry: &mut Registry) {
         .output(PortSpec::new::<SensorFrame>("frame"))
         .output(PortSpec::new::<ImageSet>("images"))
         .output(PortSpec::new::<PointCloud>("lidar")),
+        DatasetSourceParams::check,
         |params: DatasetSourceParams| Ok(Node::Source(Box::new(DatasetSource::new(params)?))),
     );
 }
@@ -328,7 +363,12 @@ mod tests {
     #[test]
     fn shard_and_size_parsing() {
         assert_eq!(parse_shard("1/4"), Ok((1, 4)));
-        assert!(parse_shard("4/4").unwrap_err().contains("0 <= I < N"));
+        assert!(
+            parse_shard("4/4")
+                .unwrap_err()
+                .to_string()
+                .contains("0 <= I < N")
+        );
         assert!(
             parse_shard("a/4").is_err() && parse_shard("3").is_err() && parse_shard("0/0").is_err()
         );

@@ -7,14 +7,16 @@ use bevworld_sensors::nuscenes::{NuScenes, NuScenesOptions};
 use bevworld_types::CameraChannel;
 use glam::DVec3;
 
-fn data() -> PathBuf {
-    PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/nuscenes-sample")
+fn data() -> Option<PathBuf> {
+    bevworld_sensors::real_dataset("nuscenes-sample")
 }
 
 #[test]
 fn reads_the_keyframe_with_its_calibration() {
-    let dataset = NuScenes::open(&data(), NuScenesOptions::default()).unwrap();
+    let Some(data) = data() else {
+        return;
+    };
+    let dataset = NuScenes::open(&data, NuScenesOptions::default()).unwrap();
     assert_eq!(dataset.version(), "v1.0-mini");
     assert_eq!(dataset.len(), 1);
     let frame = dataset.read(0).unwrap();
@@ -86,8 +88,11 @@ fn reads_the_keyframe_with_its_calibration() {
 
 #[test]
 fn unknown_scene_is_named() {
+    let Some(data) = data() else {
+        return;
+    };
     let error = NuScenes::open(
-        &data(),
+        &data,
         NuScenesOptions {
             scenes: vec!["scene-9999".into()],
             ..Default::default()

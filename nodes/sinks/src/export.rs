@@ -203,16 +203,19 @@ impl Sink for ExportSink {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::sink("export_features", "writes BEV features per frame (.npy or .safetensors) with a dataset index.json; resumable")
             .input(PortSpec::new::<BevFeatures>("features")),
-        |params: ExportParams| {
+        |params: &ExportParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));
             }
             if params.index.is_empty() || params.index.contains('/') || !params.index.ends_with(".json") {
                 return Err(ParamError::field("index", format!("'{}' is not a .json file name", params.index)).with_accepted("a file name ending in .json"));
             }
+            Ok(())
+        },
+        |params: ExportParams| {
             Ok(Node::Sink(Box::new(ExportSink { params, writes: Writes::new(8), entries: BTreeMap::new(), written: 0, skipped_existing: 0 })))
         },
     );

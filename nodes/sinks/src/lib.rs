@@ -1,5 +1,8 @@
 //! Sinks: files for people and programs.
 
+// Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
+#![cfg_attr(not(test), warn(clippy::unwrap_used))]
+
 pub mod export;
 pub mod npy;
 pub mod ply;

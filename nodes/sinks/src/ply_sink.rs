@@ -91,13 +91,13 @@ impl Sink for PlySink {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::sink(
             "ply_sink",
             "writes point clouds as PLY (x y z intensity), binary little-endian or ASCII",
         )
         .input(PortSpec::new::<PointCloud>("cloud")),
-        |params: PlySinkParams| {
+        |params: &PlySinkParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));
             }
@@ -107,6 +107,9 @@ pub fn register(registry: &mut Registry) {
                     format!("'{}' is not a file name", params.name),
                 ));
             }
+            Ok(())
+        },
+        |params: PlySinkParams| {
             Ok(Node::Sink(Box::new(PlySink {
                 params,
                 writes: Writes::new(8),

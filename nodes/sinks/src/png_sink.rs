@@ -53,16 +53,19 @@ impl Sink for PngSink {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::sink(
             "png_sink",
             "writes images as 8-bit RGB PNG, one folder per frame",
         )
         .input(PortSpec::new::<ImageSet>("images")),
-        |params: PngSinkParams| {
+        |params: &PngSinkParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));
             }
+            Ok(())
+        },
+        |params: PngSinkParams| {
             Ok(Node::Sink(Box::new(PngSink {
                 params,
                 writes: Writes::new(16),

@@ -37,7 +37,6 @@ fn sink(params: serde_json::Value) -> Box<dyn Sink> {
         .build(&params)
         .ok()
         .unwrap()
-        .node
     {
         Node::Sink(sink) => sink,
         _ => unreachable!(),

@@ -18,14 +18,7 @@ fn header(seq: u64) -> Header {
 fn build(kind: &str, params: serde_json::Value) -> Box<dyn bevworld_graph::Sink> {
     let mut registry = Registry::new();
     bevworld_sinks::register(&mut registry);
-    match registry
-        .get(kind)
-        .unwrap()
-        .build(&params)
-        .ok()
-        .unwrap()
-        .node
-    {
+    match registry.get(kind).unwrap().build(&params).ok().unwrap() {
         Node::Sink(sink) => sink,
         _ => panic!("not a sink"),
     }

@@ -8,7 +8,8 @@ use burn::prelude::*;
 use crate::decoder::VoxelLiftConfig;
 use crate::modality::Modality;
 use crate::render::rays::{VoxelPlacement, sample_depths_near_dense};
-use crate::swin::SwinConfig;
+use bevworld_blocks::swin::SwinConfig;
+use bevworld_types::ConfigProblem;
 
 /// The BEV region the latent covers, in the ego frame (metres), and its pillar grid.
 #[derive(Config, Debug, PartialEq)]
@@ -76,8 +77,11 @@ pub struct TokenizerConfig {
 pub enum ConfigError {
     #[error("{path}: {message}")]
     Read { path: String, message: String },
-    #[error("{path}: {}", problems.join("; "))]
-    Invalid { path: String, problems: Vec<String> },
+    #[error("{path}: {}", problems.iter().map(ToString::to_string).collect::<Vec<_>>().join("; "))]
+    Invalid {
+        path: String,
+        problems: Vec<ConfigProblem>,
+    },
 }
 
 impl RenderConfig {
@@ -178,16 +182,22 @@ impl TokenizerConfig {
     }
 
     /// Every inconsistency, one line each, naming the field.
-    pub fn problems(&self) -> Vec<String> {
+    pub fn problems(&self) -> Vec<ConfigProblem> {
         let mut problems = self.image_backbone.problems("image_backbone");
         problems.extend(self.lidar_backbone.problems("lidar_backbone"));
         if self.image_backbone.in_channels != 3 {
-            problems.push("image_backbone.in_channels: must be 3 (RGB)".into());
+            problems.push(ConfigProblem::new(
+                "image_backbone.in_channels",
+                "must be 3 (RGB)",
+            ));
         }
         if self.lidar_backbone.in_channels != self.pillar_channels {
-            problems.push(format!(
-                "lidar_backbone.in_channels: {} but pillar_channels is {}",
-                self.lidar_backbone.in_channels, self.pillar_channels
+            problems.push(ConfigProblem::new(
+                "lidar_backbone.in_channels",
+                format!(
+                    "{} but pillar_channels is {}",
+                    self.lidar_backbone.in_channels, self.pillar_channels
+                ),
             ));
         }
         for (name, r) in [
@@ -196,14 +206,20 @@ impl TokenizerConfig {
             ("bev.z_range", self.bev.z_range),
         ] {
             if !(r[0] < r[1]) {
-                problems.push(format!("{name}: [{}, {}] is empty", r[0], r[1]));
+                problems.push(ConfigProblem::new(
+                    name,
+                    format!("[{}, {}] is empty", r[0], r[1]),
+                ));
             }
         }
         let stride = self.lidar_backbone.stride();
         if self.bev.pillar_grid == 0 || stride == 0 || self.bev.pillar_grid % stride != 0 {
-            problems.push(format!(
-                "bev.pillar_grid: {} is not a multiple of the LiDAR backbone's stride {stride}",
-                self.bev.pillar_grid
+            problems.push(ConfigProblem::new(
+                "bev.pillar_grid",
+                format!(
+                    "{} is not a multiple of the LiDAR backbone's stride {stride}",
+                    self.bev.pillar_grid
+                ),
             ));
         }
         let image_stride = self.image_backbone.stride();
@@ -212,9 +228,12 @@ impl TokenizerConfig {
             .iter()
             .any(|&s| s == 0 || s % image_stride.max(1) != 0)
         {
-            problems.push(format!(
-                "image_size: {:?} is not a multiple of the image backbone's stride {image_stride}",
-                self.image_size
+            problems.push(ConfigProblem::new(
+                "image_size",
+                format!(
+                    "{:?} is not a multiple of the image backbone's stride {image_stride}",
+                    self.image_size
+                ),
             ));
         }
         let camera_stride = self.render.camera_stride;
@@ -222,54 +241,82 @@ impl TokenizerConfig {
             || !camera_stride.is_power_of_two()
             || self.image_size.iter().any(|&s| s % camera_stride != 0)
         {
-            problems.push(format!(
-                "render.camera_stride: {camera_stride} must be a power of two dividing image_size"
+            problems.push(ConfigProblem::new(
+                "render.camera_stride",
+                format!("{camera_stride} must be a power of two dividing image_size"),
             ));
         }
         if self.decoder.latent_channels != self.latent_channels {
-            problems.push(format!(
-                "decoder.latent_channels: {} but latent_channels is {}",
-                self.decoder.latent_channels, self.latent_channels
+            problems.push(ConfigProblem::new(
+                "decoder.latent_channels",
+                format!(
+                    "{} but latent_channels is {}",
+                    self.decoder.latent_channels, self.latent_channels
+                ),
             ));
         }
         if self.decoder.dim % 2 != 0 {
-            problems.push("decoder.dim: must be even (patch expanding halves it)".into());
+            problems.push(ConfigProblem::new(
+                "decoder.dim",
+                "must be even (patch expanding halves it)",
+            ));
         }
         if self.voxel_shape()[3] != self.bev.pillar_grid {
-            problems.push(format!(
-                "decoder.cell_split: the voxel grid has {} cells across, the pillar grid {}",
-                self.voxel_shape()[3],
-                self.bev.pillar_grid
+            problems.push(ConfigProblem::new(
+                "decoder.cell_split",
+                format!(
+                    "the voxel grid has {} cells across, the pillar grid {}",
+                    self.voxel_shape()[3],
+                    self.bev.pillar_grid
+                ),
             ));
         }
         if !(self.render.near > 0.0 && self.render.near < self.render.far)
             || self.render.samples == 0
         {
-            problems.push("render: needs 0 < near < far and at least one sample".into());
+            problems.push(ConfigProblem::new(
+                "render",
+                "needs 0 < near < far and at least one sample",
+            ));
         }
         if !(self.render.near < self.render.linear_until
             && self.render.linear_until <= self.render.far)
         {
-            problems.push(format!(
-                "render.linear_until: {} must lie in (near, far] = ({}, {}]",
-                self.render.linear_until, self.render.near, self.render.far
+            problems.push(ConfigProblem::new(
+                "render.linear_until",
+                format!(
+                    "{} must lie in (near, far] = ({}, {}]",
+                    self.render.linear_until, self.render.near, self.render.far
+                ),
             ));
         }
         if self.fusion_levels == 0 || self.fusion_levels > self.image_backbone.depths.len() {
-            problems.push(format!(
-                "fusion_levels: {} must be between 1 and the image backbone's {} stages",
-                self.fusion_levels,
-                self.image_backbone.depths.len()
+            problems.push(ConfigProblem::new(
+                "fusion_levels",
+                format!(
+                    "{} must be between 1 and the image backbone's {} stages",
+                    self.fusion_levels,
+                    self.image_backbone.depths.len()
+                ),
             ));
         }
         if self.cameras == 0 || self.fusion_heights == 0 || self.latent_channels == 0 {
-            problems.push("cameras, fusion_heights and latent_channels must be positive".into());
+            problems.push(ConfigProblem::new(
+                "cameras",
+                "cameras, fusion_heights and latent_channels must be positive",
+            ));
         }
         if self.modalities.is_empty() {
-            problems.push("modalities: needs camera, lidar, or both".into());
+            problems.push(ConfigProblem::new(
+                "modalities",
+                "needs camera, lidar, or both",
+            ));
         }
         if (1..self.modalities.len()).any(|i| self.modalities[..i].contains(&self.modalities[i])) {
-            problems.push(format!("modalities: {:?} names one twice", self.modalities));
+            problems.push(ConfigProblem::new(
+                "modalities",
+                format!("{:?} names one twice", self.modalities),
+            ));
         }
         problems
     }

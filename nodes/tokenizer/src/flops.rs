@@ -4,7 +4,7 @@
 //! times to report the achieved GFLOP/s against the machine's matmul rate.
 
 use crate::config::TokenizerConfig;
-use crate::swin::SwinConfig;
+use bevworld_blocks::swin::SwinConfig;
 
 /// Swin blocks' MLP expansion (`SwinBlockConfig::mlp_ratio`'s default).
 const MLP_RATIO: f64 = 4.0;

@@ -2,6 +2,9 @@
 //! and the LiDAR BEV, the pillar feature net, the decoder that lifts the latent to voxels, and
 //! the NeRF-style renderer that turns voxel features back into images and depths.
 
+// Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
+#![cfg_attr(not(test), warn(clippy::unwrap_used))]
+
 pub mod config;
 pub mod decoder;
 pub mod encoder;
@@ -12,8 +15,6 @@ pub mod modality;
 pub mod model;
 pub mod nodes;
 pub mod render;
-pub mod swin;
-pub mod train;
 pub mod weights;
 pub use config::TokenizerConfig;
 pub use frame_input::{EncoderArrays, FrameInputs, FrameRays, InputError};

@@ -14,7 +14,8 @@ use crate::modality::Modality;
 use crate::render::{
     VoxelField, expected_depth, expected_feature, render_weights, sample_trilinear,
 };
-use crate::swin::SwinBackbone;
+use bevworld_blocks::seeded_init;
+use bevworld_blocks::swin::SwinBackbone;
 
 /// What the encoder reads for one frame.
 pub struct EncoderInput {
@@ -82,7 +83,16 @@ pub struct Tokenizer {
 }
 
 impl TokenizerConfig {
-    /// The model, randomly initialised. Check `problems()` first (`from_yaml` does).
+    /// The model with weights drawn from `seed`: the same seed gives the same weights, whatever
+    /// else the process does (`bevworld_blocks::seeded_init`). Check `problems()` first
+    /// (`from_yaml` does).
+    pub fn init_seeded(&self, seed: u64, device: &Device) -> Tokenizer {
+        seeded_init(seed, device, |device| self.init(device))
+    }
+
+    /// The model's structure, its parameters drawn lazily from burn's process-wide generator at
+    /// their first use: for loading weights into, which replaces them undrawn. A model that
+    /// runs with its initial weights comes from `init_seeded`.
     pub fn init(&self, device: &Device) -> Tokenizer {
         let voxel_channels = self.decoder.voxel_channels;
         Tokenizer {

@@ -77,7 +77,7 @@ fn flex_and_wgpu_agree_on_the_tiny_tokenizer() {
     let config = TokenizerConfig::from_yaml_file(&path).expect("tiny config");
     let dir = tempfile::tempdir().expect("tempdir");
     let weights = dir.path().join("tiny.bpk");
-    save_weights(&config.init(&Device::flex()), &weights).expect("save");
+    save_weights(&config.init_seeded(0, &Device::flex()), &weights).expect("save");
 
     let (latent_cpu, voxels_cpu) = run(&config, &weights, &Device::flex());
     let gpu = Device::wgpu(burn::tensor::DeviceKind::DefaultDevice);

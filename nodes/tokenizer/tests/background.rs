@@ -1,6 +1,7 @@
 //! The background head: the direction encoding by hand, and compositing by the ray's
 //! remaining transmittance (an opaque ray keeps its feature, a transparent one sees the head).
 
+use bevworld_blocks::seeded_init;
 use bevworld_tokenizer::decoder::BackgroundConfig;
 use bevworld_tokenizer::decoder::background::{encode_directions, encoded_width};
 use burn::prelude::*;
@@ -41,7 +42,7 @@ fn directions_are_encoded_with_sines_and_cosines_per_octave() {
 
 #[test]
 fn opaque_rays_keep_their_feature_and_transparent_ones_see_the_background() {
-    let head = BackgroundConfig::new(8, 4).init(&device());
+    let head = seeded_init(1, &device(), |d| BackgroundConfig::new(8, 4).init(d));
     let features = Tensor::<2>::from_data(
         TensorData::new((0..12).map(|i| i as f32).collect::<Vec<_>>(), [3, 4]),
         &device(),

@@ -1,9 +1,10 @@
 //! Deformable fusion: masked projections contribute nothing, and an unseen query keeps only its
 //! residual.
 
+use bevworld_blocks::init::{random_normal, random_tensor};
+use bevworld_blocks::seeded_init;
 use bevworld_tokenizer::encoder::fusion::DeformableFusionConfig;
 use burn::prelude::*;
-use burn::tensor::Distribution;
 
 fn device() -> Device {
     Device::flex()
@@ -19,23 +20,17 @@ const H: usize = 3;
 const W: usize = 4;
 
 fn inputs(seed_shift: f64) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
-    let bev = Tensor::<4>::random([1, 8, H, W], Distribution::Normal(0.0, 1.0), &device());
-    let images = Tensor::<4>::random(
-        [CAMERAS, 6, 5, 7],
-        Distribution::Normal(seed_shift, 1.0),
-        &device(),
-    );
-    let reference = Tensor::<4>::random(
-        [CAMERAS, H * W, K, 2],
-        Distribution::Uniform(-0.9, 0.9),
-        &device(),
-    );
+    let bev = random_normal(1, [1, 8, H, W], 0.0, 1.0, &device());
+    let images = random_normal(2, [CAMERAS, 6, 5, 7], seed_shift, 1.0, &device());
+    let reference = random_tensor(3, [CAMERAS, H * W, K, 2], -0.9, 0.9, &device());
     (bev, images, reference)
 }
 
 #[test]
 fn a_camera_that_sees_no_point_contributes_nothing() {
-    let fusion = DeformableFusionConfig::new(8, 6, CAMERAS, K).init(&device());
+    let fusion = seeded_init(1, &device(), |d| {
+        DeformableFusionConfig::new(8, 6, CAMERAS, K).init(d)
+    });
     let (bev, images, reference) = inputs(0.0);
     // Camera 1 sees nothing; camera 0 sees everything.
     let mut valid = vec![1.0f32; H * W * K];
@@ -50,7 +45,7 @@ fn a_camera_that_sees_no_point_contributes_nothing() {
     ));
 
     // Replace camera 1's features with anything: the output must not move.
-    let other = Tensor::<4>::random([1, 6, 5, 7], Distribution::Normal(5.0, 3.0), &device());
+    let other = random_normal(4, [1, 6, 5, 7], 5.0, 3.0, &device());
     let images2 = Tensor::cat(vec![images.clone().narrow(0, 0, 1), other], 0);
     let out2 = values(fusion.forward(
         bev.clone(),
@@ -63,7 +58,7 @@ fn a_camera_that_sees_no_point_contributes_nothing() {
         assert!((a - b).abs() < 1e-5, "{a} vs {b}");
     }
     // Camera 0's features do matter.
-    let other = Tensor::<4>::random([1, 6, 5, 7], Distribution::Normal(5.0, 3.0), &device());
+    let other = random_normal(5, [1, 6, 5, 7], 5.0, 3.0, &device());
     let images3 = Tensor::cat(vec![other, images.narrow(0, 1, 1)], 0);
     let out3 = values(fusion.forward(bev, images3, Vec::new(), reference, valid));
     assert!(out.iter().zip(&out3).any(|(a, b)| (a - b).abs() > 1e-3));
@@ -71,7 +66,9 @@ fn a_camera_that_sees_no_point_contributes_nothing() {
 
 #[test]
 fn an_unseen_query_keeps_only_its_residual() {
-    let fusion = DeformableFusionConfig::new(8, 6, CAMERAS, K).init(&device());
+    let fusion = seeded_init(1, &device(), |d| {
+        DeformableFusionConfig::new(8, 6, CAMERAS, K).init(d)
+    });
     let (bev, images, reference) = inputs(0.0);
     let nothing = Tensor::<3>::zeros([CAMERAS, H * W, K], &device());
     let out = values(fusion.forward(
@@ -91,17 +88,14 @@ fn an_unseen_query_keeps_only_its_residual() {
 #[test]
 fn a_finer_level_is_read_only_where_its_camera_sees_the_point() {
     // One finer level of 3 channels at twice the coarse map's size.
-    let fusion = DeformableFusionConfig::new(8, 6, CAMERAS, K)
-        .with_fine_channels(vec![3])
-        .init(&device());
+    let fusion = seeded_init(2, &device(), |d| {
+        DeformableFusionConfig::new(8, 6, CAMERAS, K)
+            .with_fine_channels(vec![3])
+            .init(d)
+    });
     let (bev, images, reference) = inputs(0.0);
-    let fine = |mean: f64| {
-        Tensor::<4>::random(
-            [CAMERAS, 3, 10, 14],
-            Distribution::Normal(mean, 1.0),
-            &device(),
-        )
-    };
+    let fine =
+        |mean: f64| random_normal(6 + mean as u64, [CAMERAS, 3, 10, 14], mean, 1.0, &device());
     let mut valid = vec![1.0f32; H * W * K];
     valid.extend(vec![0.0f32; H * W * K]);
     let valid = Tensor::<3>::from_data(TensorData::new(valid, [CAMERAS, H * W, K]), &device());

@@ -3,11 +3,11 @@
 
 use std::path::PathBuf;
 
+use bevworld_blocks::init::{random_normal, random_tensor};
 use bevworld_tokenizer::TokenizerConfig;
 use bevworld_tokenizer::model::EncoderInput;
 use bevworld_tokenizer::render::rays::{Rays, sample_positions};
 use burn::prelude::*;
-use burn::tensor::Distribution;
 
 #[test]
 fn tiny_tokenizer_runs_end_to_end() {
@@ -17,25 +17,21 @@ fn tiny_tokenizer_runs_end_to_end() {
     )
     .join("../../configs/models/tokenizer-tiny.yaml");
     let config = TokenizerConfig::from_yaml_file(&path).expect("tiny config");
-    let model = config.init(&device);
+    let model = config.init_seeded(0, &device);
     let [h, w] = config.image_size;
     let n = config.latent_size();
     let (cameras, k) = (config.cameras, config.fusion_heights);
 
     let pillars = 5;
     let input = EncoderInput {
-        images: Tensor::random([cameras, 3, h, w], Distribution::Uniform(0.0, 1.0), &device),
-        pillar_points: Tensor::random([pillars, 20, 9], Distribution::Normal(0.0, 1.0), &device),
+        images: random_tensor(1, [cameras, 3, h, w], 0.0, 1.0, &device),
+        pillar_points: random_normal(2, [pillars, 20, 9], 0.0, 1.0, &device),
         pillar_valid: Tensor::ones([pillars, 20], &device),
         pillar_cells: Tensor::from_data(
             TensorData::new(vec![0i64, 77, 500, 9000, 16383], [pillars]),
             &device,
         ),
-        reference: Tensor::random(
-            [cameras, n * n, k, 2],
-            Distribution::Uniform(-1.0, 1.0),
-            &device,
-        ),
+        reference: random_tensor(3, [cameras, n * n, k, 2], -1.0, 1.0, &device),
         reference_valid: Tensor::ones([cameras, n * n, k], &device),
     };
     let encoded = model.encode(input);
@@ -76,21 +72,9 @@ fn tiny_tokenizer_runs_end_to_end() {
 
     let stride = config.render.camera_stride;
     let (rows, columns) = (h / stride, w / stride);
-    let features = Tensor::<2>::random(
-        [cameras * rows * columns, cv],
-        Distribution::Normal(0.0, 1.0),
-        &device,
-    );
-    let opacity = Tensor::<1>::random(
-        [cameras * rows * columns],
-        Distribution::Uniform(0.0, 1.0),
-        &device,
-    );
-    let directions = Tensor::<2>::random(
-        [cameras * rows * columns, 3],
-        Distribution::Normal(0.0, 1.0),
-        &device,
-    );
+    let features = random_normal(4, [cameras * rows * columns, cv], 0.0, 1.0, &device);
+    let opacity = random_tensor(5, [cameras * rows * columns], 0.0, 1.0, &device);
+    let directions = random_normal(6, [cameras * rows * columns, 3], 0.0, 1.0, &device);
     let rgb = model.camera_rgb(features, opacity, directions, cameras, rows, columns);
     assert_eq!(rgb.dims(), [cameras, 3, h, w]);
 }

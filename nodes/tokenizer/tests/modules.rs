@@ -1,10 +1,11 @@
 //! The pillar feature net, its scatter, and the voxel lift: layouts against hand-computed
 //! positions, the padding rule, and shapes at the tiny size and (by arithmetic) the paper's.
 
+use bevworld_blocks::seeded_init;
+use bevworld_blocks::swin::SwinConfig;
 use bevworld_tokenizer::decoder::VoxelLiftConfig;
 use bevworld_tokenizer::encoder::{PillarNetConfig, scatter_to_bev};
 use bevworld_tokenizer::render::VoxelField;
-use bevworld_tokenizer::swin::SwinConfig;
 use burn::prelude::*;
 
 fn device() -> Device {
@@ -17,7 +18,7 @@ fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 
 #[test]
 fn padded_point_slots_never_reach_the_pillar_feature() {
-    let net = PillarNetConfig::new(16).init(&device());
+    let net = seeded_init(1, &device(), |d| PillarNetConfig::new(16).init(d));
     let real: Vec<f32> = (0..2 * 9).map(|i| (i as f32 * 0.37).sin() * 3.0).collect();
     let with_padding = |pad: f32| {
         let mut data = real.clone();
@@ -105,7 +106,7 @@ fn cell_blocks_land_at_their_voxels() {
 #[test]
 fn voxel_lift_runs_at_a_small_size() {
     let config = VoxelLiftConfig::new(4, 32, [2, 2], [2, 2], 4, 4, 8, 2);
-    let lift = config.init(&device());
+    let lift = seeded_init(2, &device(), |d| config.init(d));
     let voxels = lift.forward(Tensor::zeros([1, 4, 8, 8], &device()));
     assert_eq!(voxels.to_grid().dims(), [1, 4, 8, 32, 32]);
     assert_eq!(config.voxel_shape(8, 8), [4, 8, 32, 32]);

@@ -1,8 +1,6 @@
 //! The fusion's projection on the real nuScenes keyframe lands where `bevworld inspect` (the
 //! devkit's `map_pointcloud_to_image`) puts each LiDAR point, and masks what no camera sees.
 
-use std::path::PathBuf;
-
 use bevworld_sensors::inspect::project_cloud;
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::encoder::projection::{
@@ -12,10 +10,9 @@ use glam::DVec3;
 
 #[test]
 fn fusion_projection_matches_inspect_on_the_real_sample() {
-    let root = PathBuf::from(
-        std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
-    )
-    .join("../../../shared/data/nuscenes-sample");
+    let Some(root) = bevworld_sensors::real_dataset("nuscenes-sample") else {
+        return;
+    };
     let frame = Dataset::open(&root, &DatasetOptions::default())
         .expect("nuScenes sample")
         .read(0)

@@ -14,10 +14,10 @@ use bevworld_metrics::{Planes, Roi, chamfer_in_roi, psnr};
 use bevworld_pillarize::{Limits, Pillarizer};
 use bevworld_sensors::synth::{SynthConfig, generate};
 use bevworld_sensors::{Dataset, DatasetOptions};
-use bevworld_tokenizer::latent::stats_file::{LatentStatsFile, stats_path_for};
 use bevworld_tokenizer::render::VoxelScene;
 use bevworld_tokenizer::render::rays::points_from_depths;
 use bevworld_tokenizer::{FrameInputs, load_weights, weights_digest};
+use bevworld_types::{LatentStatsFile, stats_path_for};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 

@@ -7,12 +7,12 @@ mod common;
 
 use common::tiny;
 
+use bevworld_blocks::init::{random_normal, random_values};
 use bevworld_tokenizer::render::rays::Rays;
 use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelField, VoxelScene};
 use bevworld_tokenizer::{Tokenizer, TokenizerConfig};
 use burn::module::Module;
 use burn::prelude::*;
-use burn::tensor::Distribution;
 
 /// Two feature vectors whose alpha logits under this model are below −20 and above +20,
 /// found among scaled random candidates (the head is piecewise linear, so large inputs
@@ -21,15 +21,10 @@ fn empty_and_occupied(model: &Tokenizer, channels: usize, device: &Device) -> (V
     let candidates = 512;
     // Read the random draw back once and rebuild the tensor from it, so that the logits and
     // the returned vectors come from the very same values.
-    let values = Tensor::<3>::random(
-        [1, candidates, channels],
-        Distribution::Normal(0.0, 1.0),
-        device,
-    )
-    .mul_scalar(50.0)
-    .into_data()
-    .try_to_vec::<f32>()
-    .expect("features");
+    let values: Vec<f32> = random_values(7, candidates * channels, 0.0, 1.0, true)
+        .into_iter()
+        .map(|v| v * 50.0)
+        .collect();
     let features = Tensor::<3>::from_data(
         TensorData::new(values.clone(), [1, candidates, channels]),
         device,
@@ -112,9 +107,8 @@ fn fan(count: usize) -> Rays {
 #[test]
 fn skipping_matches_dense_on_a_box_and_skips_most_samples() {
     let device = Device::flex();
-    device.seed(7);
     let config = tiny();
-    let model = config.init(&device);
+    let model = config.init_seeded(7, &device);
     let channels = config.decoder.voxel_channels;
     let (empty, occupied) = empty_and_occupied(&model, channels, &device);
     let voxels = box_scene(&config, &empty, &occupied, &device);
@@ -191,8 +185,7 @@ fn with_escape_at_far_a_ray_that_misses_everything_ends_at_the_far_plane() {
         ..plain_config.clone()
     };
     // Both models hold the same parameters; only the escape differs.
-    device.seed(7);
-    let plain = plain_config.init(&device);
+    let plain = plain_config.init_seeded(7, &device);
     let escaping = escape_config
         .init(&device)
         .load_record(plain.clone().into_record());
@@ -266,9 +259,9 @@ fn with_escape_at_far_a_ray_that_misses_everything_ends_at_the_far_plane() {
 fn skipping_nothing_reproduces_the_dense_render() {
     let device = Device::flex();
     let config = tiny();
-    let model = config.init(&device);
+    let model = config.init_seeded(0, &device);
     let [c, z, y, x] = config.voxel_shape();
-    let voxels = Tensor::<5>::random([1, c, z, y, x], Distribution::Normal(0.0, 1.0), &device);
+    let voxels = random_normal(8, [1, c, z, y, x], 0.0, 1.0, &device);
     let scene = VoxelScene::new(&model, &config, VoxelField::from_grid(voxels));
     let rays = fan(64);
     let keep_all = SkipOptions {

@@ -1,23 +1,34 @@
-//! The domain types every node shares: frames, calibration, poses, point clouds and ego actions.
+//! The domain types every node shares: frames, calibration, poses, point clouds, ego actions,
+//! the latent's statistics (the contract between the tokenizer and the world model), and the
+//! typed config problem every config check reports.
 //!
 //! Transforms are named `a_from_b`: they map coordinates in frame `b` to frame `a`, so products
 //! read right to left: `global_from_lidar = global_from_ego * ego_from_lidar`. Global poses are
 //! f64 (nuScenes coordinates reach kilometres, where f32 loses centimetres).
+
+// Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
+#![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod action;
 pub mod bev;
 pub mod camera;
 pub mod ego_body;
 pub mod frame;
+pub mod latent_stats;
+pub mod latent_stats_file;
 pub mod pillars;
 pub mod point_cloud;
 pub mod pose;
+pub mod problem;
 
 pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
 pub use ego_body::EgoBody;
 pub use frame::SensorFrame;
-pub use pillars::{PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
+pub use latent_stats::{LatentStats, LatentStatsAccumulator, LatentStatsError};
+pub use latent_stats_file::{LatentStatsFile, StatsFileError, stats_path_for};
+pub use pillars::{GridError, PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 pub use point_cloud::{LidarPoint, PointCloud};
 pub use pose::{Pose, pose_from_translation_quaternion};
+pub use problem::ConfigProblem;

@@ -4,6 +4,26 @@ use serde::{Deserialize, Serialize};
 
 use crate::bev::FrameMeta;
 
+/// Why a pillar grid cannot be used.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum GridError {
+    #[error("ranges and pillar_size must be finite")]
+    NonFinite,
+    #[error("pillar_size must be > 0, got {0}")]
+    PillarSize(f32),
+    #[error("{name} must be [min, max) with min < max, got {range:?}")]
+    Range { name: &'static str, range: [f32; 2] },
+    #[error("pillar_size {pillar_size} does not divide {name} {range:?} ({cells} cells)")]
+    Indivisible {
+        name: &'static str,
+        range: [f32; 2],
+        pillar_size: f32,
+        cells: f32,
+    },
+    #[error("the grid has {nx} x {ny} cells (allowed: 1 to 4096 x 4096)")]
+    Cells { nx: usize, ny: usize },
+}
+
 /// A BEV grid over the ego frame. Intervals are half-open: a point is inside when
 /// `min <= coordinate < max` on every axis, and falls in cell `floor((x - x_min) / size)`, so a
 /// point exactly on a border between cells belongs to the higher cell, and a point on the
@@ -40,17 +60,17 @@ impl PillarGrid {
     }
 
     /// Checks the grid is usable: finite, ordered ranges that the pillar size divides.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), GridError> {
         let finite = [self.x_range, self.y_range, self.z_range]
             .iter()
             .flatten()
             .all(|v| v.is_finite())
             && self.pillar_size.is_finite();
         if !finite {
-            return Err("ranges and pillar_size must be finite".into());
+            return Err(GridError::NonFinite);
         }
         if self.pillar_size <= 0.0 {
-            return Err(format!("pillar_size must be > 0, got {}", self.pillar_size));
+            return Err(GridError::PillarSize(self.pillar_size));
         }
         for (name, range) in [
             ("x_range", self.x_range),
@@ -58,25 +78,23 @@ impl PillarGrid {
             ("z_range", self.z_range),
         ] {
             if range[0] >= range[1] {
-                return Err(format!(
-                    "{name} must be [min, max) with min < max, got {range:?}"
-                ));
+                return Err(GridError::Range { name, range });
             }
         }
         for (name, range) in [("x_range", self.x_range), ("y_range", self.y_range)] {
             let cells = (range[1] - range[0]) / self.pillar_size;
             if (cells - cells.round()).abs() > 1e-3 {
-                return Err(format!(
-                    "pillar_size {} does not divide {name} {range:?} ({cells} cells)",
-                    self.pillar_size
-                ));
+                return Err(GridError::Indivisible {
+                    name,
+                    range,
+                    pillar_size: self.pillar_size,
+                    cells,
+                });
             }
         }
         let (nx, ny) = self.size();
         if nx == 0 || ny == 0 || nx * ny > 16_777_216 {
-            return Err(format!(
-                "the grid has {nx} x {ny} cells (allowed: 1 to 4096 x 4096)"
-            ));
+            return Err(GridError::Cells { nx, ny });
         }
         Ok(())
     }

@@ -11,10 +11,12 @@ pub mod render;
 pub mod rig;
 pub mod rng;
 pub mod scene;
+pub mod set;
 pub mod traffic;
 pub mod world;
 pub mod writer;
 
 pub use in_place::{InPlace, generate_in_place};
 pub use scene::SceneWorld;
+pub use set::{SynthSet, SynthSetError};
 pub use writer::{ImageEncoding, SynthConfig, SynthSummary, VERSION, generate, scene_name};

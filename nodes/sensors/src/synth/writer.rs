@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::DQuat;
-use serde::Serialize;
 use serde_json::json;
 
 use bevworld_types::{CameraChannel, Pose};
@@ -484,6 +483,3 @@ pub fn camera_channels() -> Vec<CameraChannel> {
 pub fn tables_dir(out: &Path) -> PathBuf {
     out.join(VERSION)
 }
-
-#[allow(dead_code)]
-fn assert_serialize<T: Serialize>() {}

@@ -11,8 +11,8 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
 use crate::render::VoxelField;
-use crate::swin::patch::{PatchExpanding, patch_expanding};
-use crate::swin::{SwinBlock, SwinBlockConfig, run_blocks};
+use bevworld_blocks::swin::patch::{PatchExpanding, patch_expanding};
+use bevworld_blocks::swin::{SwinBlock, SwinBlockConfig, run_blocks};
 
 #[derive(Config, Debug, PartialEq)]
 pub struct VoxelLiftConfig {

@@ -17,7 +17,7 @@ use burn::prelude::*;
 use burn::tensor::activation::softmax;
 
 use crate::encoder::bilinear::sample_bilinear;
-use crate::swin::window::MASKED;
+use bevworld_blocks::MASKED;
 
 #[derive(Config, Debug, PartialEq)]
 pub struct DeformableFusionConfig {

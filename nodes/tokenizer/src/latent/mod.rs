@@ -1,10 +1,6 @@
-//! The 4-channel latent: compression of the fused BEV feature, and the per-channel statistics
-//! the world model standardises with.
+//! The 4-channel latent: compression of the fused BEV feature. Its per-channel statistics, the
+//! contract with the world model, live in `bevworld_types::latent_stats`.
 
 pub mod compress;
-pub mod stats;
-pub mod stats_file;
 
 pub use compress::{LatentCompress, LatentCompressConfig};
-pub use stats::{LatentStats, LatentStatsAccumulator};
-pub use stats_file::{LatentStatsFile, StatsFileError, stats_path_for};

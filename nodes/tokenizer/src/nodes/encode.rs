@@ -89,7 +89,7 @@ impl Task for EncodeNode {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::task(
             "encode",
             "the BEV tokenizer's encoder: six cameras and the sweep's pillars to the C' x h x w latent",
@@ -98,6 +98,7 @@ pub fn register(registry: &mut Registry) {
         .input(PortSpec::new::<Pillars>("pillars"))
         .output(PortSpec::new::<BevFeatures>("latent"))
         .output(PortSpec::new::<BevFeatures>("fused")),
+        |params: &EncodeParams| params.model.check(),
         |params: EncodeParams| {
             let loaded = params.model.load()?;
             Ok(Node::Task(Box::new(EncodeNode {

@@ -253,7 +253,7 @@ impl Task for RenderNode {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register(
+    registry.register_checked(
         KindSpec::task(
             "render",
             "the BEV tokenizer's decoder: a latent to voxels, ray-cast into the frame's six cameras and LiDAR beams",
@@ -263,7 +263,7 @@ pub fn register(registry: &mut Registry) {
         .output(PortSpec::new::<ImageSet>("images"))
         .output(PortSpec::new::<PointCloud>("lidar"))
         .output(PortSpec::new::<ImageSet>("side_by_side")),
-        |params: RenderParams| {
+        |params: &RenderParams| {
             if let Some(options) = &params.skipping {
                 let problems = options.problems();
                 if let Some(first) = problems.first() {
@@ -273,6 +273,9 @@ pub fn register(registry: &mut Registry) {
             if params.chunk == 0 {
                 return Err(ParamError::field("chunk", "must be at least 1").with_accepted("an integer >= 1"));
             }
+            params.model.check()
+        },
+        |params: RenderParams| {
             let loaded = params.model.load()?;
             Ok(Node::Task(Box::new(RenderNode {
                 inputs: FrameInputs::new(&loaded.config),

@@ -24,11 +24,13 @@ pub fn tiny() -> TokenizerConfig {
     model_config("tiny")
 }
 
-/// The keyframe of `../shared/data/nuscenes-sample`.
-pub fn nuscenes_frame() -> SensorFrame {
-    let root = crate_dir().join("../../../shared/data/nuscenes-sample");
-    Dataset::open(&root, &DatasetOptions::default())
-        .expect("nuScenes sample")
-        .read(0)
-        .expect("frame 0")
+/// The keyframe of the real nuScenes sample (`BEVWORLD_DATA`), when it is there.
+pub fn nuscenes_frame() -> Option<SensorFrame> {
+    let root = bevworld_sensors::real_dataset("nuscenes-sample")?;
+    Some(
+        Dataset::open(&root, &DatasetOptions::default())
+            .expect("nuScenes sample")
+            .read(0)
+            .expect("frame 0"),
+    )
 }

@@ -1,0 +1,116 @@
+//! Multi-head scaled dot-product attention (Vaswani et al. 2017),
+//! `softmax(Q Kᵀ / √d + B) V`, with an additive bias `B` that carries masks and learned
+//! position biases. Swin's window attention and the world model's spatial and temporal
+//! attention all go through `scaled_dot_product`.
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::softmax;
+
+/// Additive attention bias for token pairs that must not attend to each other. Large enough
+/// that `exp` gives exactly 0 in f32, finite so that no backward pass ever sees `inf - inf`.
+pub const MASKED: f32 = -1e9;
+
+/// `softmax(q kᵀ / √d + bias) v`, the bias broadcast over the batch and head axes where it has
+/// size 1 there.
+// q, k, v: [B, H, N, d], bias: [B | 1, H | 1, N, N] -> [B, H, N, d]
+pub fn scaled_dot_product(
+    q: Tensor<4>,
+    k: Tensor<4>,
+    v: Tensor<4>,
+    bias: Option<Tensor<4>>,
+) -> Tensor<4> {
+    let logits = attention_logits(q, k);
+    attend(
+        match bias {
+            Some(bias) => logits + bias,
+            None => logits,
+        },
+        v,
+    )
+}
+
+/// `q kᵀ / √d`, for callers that add a bias of their own layout before `attend`.
+// q, k: [B, H, N, d] -> [B, H, N, N]
+pub fn attention_logits(q: Tensor<4>, k: Tensor<4>) -> Tensor<4> {
+    let [_, _, _, head_dim] = q.dims();
+    let scale = (head_dim as f64).powf(-0.5);
+    q.mul_scalar(scale).matmul(k.swap_dims(2, 3))
+}
+
+/// `softmax(logits) v`.
+// logits: [B, H, N, N], v: [B, H, N, d] -> [B, H, N, d]
+pub fn attend(logits: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+    softmax(logits, 3).matmul(v)
+}
+
+/// Projects tokens to per-head queries, keys and values with one fused linear layer.
+// x: [B, N, C] -> 3 × [B, H, N, C / H]
+pub fn split_heads(qkv: &Linear, x: Tensor<3>, heads: usize) -> [Tensor<4>; 3] {
+    let [batch, tokens, dim] = x.dims();
+    let head_dim = dim / heads;
+    let qkv = qkv
+        .forward(x)
+        .reshape([batch, tokens, 3, heads, head_dim])
+        .permute([2, 0, 3, 1, 4]); // [3, B, H, N, d]
+    let part = |i: usize| {
+        qkv.clone()
+            .narrow(0, i, 1)
+            .reshape([batch, heads, tokens, head_dim])
+    };
+    [part(0), part(1), part(2)]
+}
+
+/// Joins the heads back and applies the output projection.
+// out: [B, H, N, d] -> [B, N, H·d]
+pub fn merge_heads(proj: &Linear, out: Tensor<4>) -> Tensor<3> {
+    let [batch, heads, tokens, head_dim] = out.dims();
+    proj.forward(
+        out.swap_dims(1, 2)
+            .reshape([batch, tokens, heads * head_dim]),
+    )
+}
+
+/// The additive mask that lets token `i` attend to tokens `j ≤ i` only.
+// -> [N, N]
+pub fn causal_mask(tokens: usize, device: &Device) -> Tensor<2> {
+    let values: Vec<f32> = (0..tokens)
+        .flat_map(|i| (0..tokens).map(move |j| if j <= i { 0.0 } else { MASKED }))
+        .collect();
+    Tensor::from_data(TensorData::new(values, [tokens, tokens]), device)
+}
+
+#[derive(Config, Debug)]
+pub struct MultiHeadAttentionConfig {
+    pub dim: usize,
+    pub heads: usize,
+}
+
+/// Self-attention over a sequence of tokens.
+#[derive(Module, Debug)]
+pub struct MultiHeadAttention {
+    qkv: Linear,
+    proj: Linear,
+    #[module(skip)]
+    heads: usize,
+}
+
+impl MultiHeadAttentionConfig {
+    pub fn init(&self, device: &Device) -> MultiHeadAttention {
+        MultiHeadAttention {
+            qkv: LinearConfig::new(self.dim, 3 * self.dim).init(device),
+            proj: LinearConfig::new(self.dim, self.dim).init(device),
+            heads: self.heads,
+        }
+    }
+}
+
+impl MultiHeadAttention {
+    /// `bias` is added to every head's logits: a mask (`causal_mask`, `MASKED` entries) or a
+    /// learned bias.
+    // x: [B, N, C], bias: [B | 1, H | 1, N, N] -> [B, N, C]
+    pub fn forward(&self, x: Tensor<3>, bias: Option<Tensor<4>>) -> Tensor<3> {
+        let [q, k, v] = split_heads(&self.qkv, x, self.heads);
+        merge_heads(&self.proj, scaled_dot_product(q, k, v, bias))
+    }
+}

@@ -1,0 +1,40 @@
+//! The transformer's position-wise MLP: `Linear → GELU → Linear`.
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::gelu;
+
+/// `fc2(GELU(fc1(x)))`, the one definition Swin blocks (whose weights name the layers `fc1`
+/// and `fc2` directly) and `Mlp` share.
+// x: [..., C] -> [..., C_out]
+pub fn gelu_mlp<const D: usize>(fc1: &Linear, fc2: &Linear, x: Tensor<D>) -> Tensor<D> {
+    fc2.forward(gelu(fc1.forward(x)))
+}
+
+#[derive(Config, Debug)]
+pub struct MlpConfig {
+    pub dim: usize,
+    pub hidden: usize,
+}
+
+#[derive(Module, Debug)]
+pub struct Mlp {
+    fc1: Linear,
+    fc2: Linear,
+}
+
+impl MlpConfig {
+    pub fn init(&self, device: &Device) -> Mlp {
+        Mlp {
+            fc1: LinearConfig::new(self.dim, self.hidden).init(device),
+            fc2: LinearConfig::new(self.hidden, self.dim).init(device),
+        }
+    }
+}
+
+impl Mlp {
+    // [..., C] -> [..., C]
+    pub fn forward<const D: usize>(&self, x: Tensor<D>) -> Tensor<D> {
+        gelu_mlp(&self.fc1, &self.fc2, x)
+    }
+}

@@ -1,0 +1,131 @@
+//! Module weights on disk, as burnpack files: written whole, and loaded only when every tensor
+//! of the module is in the file with the right shape. A missing file, another model's weights,
+//! or a config that does not fit the file are errors that say which.
+
+use std::path::{Path, PathBuf};
+
+use burn::module::Module;
+use burn::store::{BurnpackStore, ModuleSnapshot};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModuleFileError {
+    #[error("{what} weights {path}: file not found")]
+    NotFound { what: String, path: PathBuf },
+    #[error("{what} weights {path}: {message}")]
+    Io {
+        what: String,
+        path: PathBuf,
+        message: String,
+    },
+    #[error(
+        "{what} weights {path} do not fit the config '{config}': {count} tensors missing or of \
+         another shape, e.g. {examples}"
+    )]
+    Mismatch {
+        what: String,
+        path: PathBuf,
+        config: String,
+        count: usize,
+        examples: String,
+    },
+}
+
+/// Writes `module`'s weights as burnpack (the file name is used as given). `what` names the
+/// model in errors ("tokenizer").
+pub fn save_module<M: Module>(module: &M, what: &str, path: &Path) -> Result<(), ModuleFileError> {
+    let mut store = BurnpackStore::from_file(path)
+        .auto_extension(false)
+        .overwrite(true);
+    module
+        .save_into(&mut store)
+        .map_err(|e| ModuleFileError::Io {
+            what: what.into(),
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
+}
+
+/// Loads every tensor of `module` (built for the config named `config`) from `path`; a missing
+/// tensor or one of another shape is an error naming a few of them.
+pub fn load_module<M: Module>(
+    mut module: M,
+    what: &str,
+    config: &str,
+    path: &Path,
+) -> Result<M, ModuleFileError> {
+    if !path.is_file() {
+        return Err(ModuleFileError::NotFound {
+            what: what.into(),
+            path: path.to_path_buf(),
+        });
+    }
+    let mut store = BurnpackStore::from_file(path)
+        .auto_extension(false)
+        .allow_partial(true)
+        // Collect shape errors into the result, to name a few instead of all of them.
+        .validate(false);
+    let result = module
+        .load_from(&mut store)
+        .map_err(|e| ModuleFileError::Io {
+            what: what.into(),
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    let mut problems: Vec<String> = result
+        .missing
+        .iter()
+        .map(|(name, _)| format!("{name} (missing)"))
+        .collect();
+    problems.extend(result.errors.iter().map(|e| format!("{e:?}")));
+    if problems.is_empty() {
+        Ok(module)
+    } else {
+        Err(ModuleFileError::Mismatch {
+            what: what.into(),
+            path: path.to_path_buf(),
+            config: config.to_string(),
+            count: problems.len(),
+            examples: problems
+                .iter()
+                .take(3)
+                .cloned()
+                .collect::<Vec<_>>()
+                .join("; "),
+        })
+    }
+}
+
+/// Checks, without loading any tensor, that `path` is a readable burnpack file holding
+/// tensors: its header and metadata only are read. What `bevworld check` can say of a weights
+/// file; whether the tensors fit a config is found when they load.
+pub fn check_file(what: &str, path: &Path) -> Result<(), ModuleFileError> {
+    if !path.is_file() {
+        return Err(ModuleFileError::NotFound {
+            what: what.into(),
+            path: path.to_path_buf(),
+        });
+    }
+    let io = |message: String| ModuleFileError::Io {
+        what: what.into(),
+        path: path.to_path_buf(),
+        message,
+    };
+    let reader = burn::store::burn_pack::Reader::from_file_exact(path)
+        .map_err(|e| io(format!("not a burnpack weights file ({e})")))?;
+    if reader.tensor_names().is_empty() {
+        return Err(io("holds no tensors".into()));
+    }
+    Ok(())
+}
+
+/// A short fingerprint of a file (FNV-1a, 64 bit, hex), stamped on every product so that
+/// exported features say which weights made them.
+pub fn file_digest(path: &Path) -> std::io::Result<String> {
+    let bytes = std::fs::read(path)?;
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    for byte in bytes {
+        hash ^= u64::from(byte);
+        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    Ok(format!("{hash:016x}"))
+}

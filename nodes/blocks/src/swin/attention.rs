@@ -1,0 +1,108 @@
+//! Multi-head self-attention inside a window, with a learned relative position bias.
+
+use burn::module::Param;
+use burn::nn::{Initializer, Linear, LinearConfig};
+use burn::prelude::*;
+
+use super::window::relative_position_index;
+use crate::attention::{attend, attention_logits, merge_heads, split_heads};
+use crate::cache::TensorCache;
+
+#[derive(Config, Debug)]
+pub struct WindowAttentionConfig {
+    pub dim: usize,
+    pub heads: usize,
+    /// Window side w; attention runs over w * w tokens.
+    pub window: usize,
+}
+
+#[derive(Module, Debug)]
+pub struct WindowAttention {
+    qkv: Linear,
+    proj: Linear,
+    /// One bias per head for each of the (2w - 1)^2 relative offsets.
+    bias_table: Param<Tensor<2>>,
+    #[module(skip)]
+    heads: usize,
+    #[module(skip)]
+    window: usize,
+    /// The relative position index of the window side that runs, per device: built once,
+    /// not on every forward pass.
+    #[module(skip)]
+    index: TensorCache<usize, 1, Int>,
+}
+
+impl WindowAttentionConfig {
+    pub fn init(&self, device: &Device) -> WindowAttention {
+        let span = 2 * self.window - 1;
+        WindowAttention {
+            qkv: LinearConfig::new(self.dim, 3 * self.dim).init(device),
+            proj: LinearConfig::new(self.dim, self.dim).init(device),
+            bias_table: Initializer::Normal {
+                mean: 0.0,
+                std: 0.02,
+            }
+            .init([span * span, self.heads], device),
+            heads: self.heads,
+            window: self.window,
+            index: TensorCache::default(),
+        }
+    }
+}
+
+impl WindowAttention {
+    /// `mask`, when given, is added to the logits of every window of its index:
+    /// `[windows_per_image, N, N]`, with the batch's windows in `window_partition` order.
+    // x: [B * windows, N, C] -> [B * windows, N, C], N = w * w
+    pub fn forward(&self, x: Tensor<3>, mask: Option<Tensor<3>>) -> Tensor<3> {
+        let [count, tokens, _] = x.dims();
+        let device = x.device();
+        let [q, k, v] = split_heads(&self.qkv, x, self.heads);
+        // A map smaller than the configured window runs as one window of its own side; the
+        // bias table is indexed with the offsets of the configured window.
+        let index = self.index.get_or_build(tokens, &device, || {
+            Tensor::<1, Int>::from_data(
+                TensorData::new(self.offsets(tokens), [tokens * tokens]),
+                &device,
+            )
+        });
+        let bias = self
+            .bias_table
+            .val()
+            .select(0, index) // [N * N, H]
+            .reshape([tokens, tokens, self.heads])
+            .permute([2, 0, 1])
+            .reshape([1, self.heads, tokens, tokens]);
+        let mut logits = attention_logits(q, k) + bias; // [B*, H, N, N]
+        if let Some(mask) = mask {
+            let [windows, _, _] = mask.dims();
+            logits = (logits.reshape([count / windows, windows, self.heads, tokens, tokens])
+                + mask.reshape([1, windows, 1, tokens, tokens]))
+            .reshape([count, self.heads, tokens, tokens]);
+        }
+        merge_heads(&self.proj, attend(logits, v))
+    }
+
+    /// The bias table rows of every token pair of a window of `tokens` tokens.
+    fn offsets(&self, tokens: usize) -> Vec<i64> {
+        let side = (tokens as f64).sqrt().round() as usize;
+        if side == self.window {
+            return relative_position_index(self.window);
+        }
+        // A smaller window: its offsets, placed in the configured window's table.
+        let span = 2 * self.window as i64 - 1;
+        let mut index = Vec::with_capacity(tokens * tokens);
+        for i in 0..tokens {
+            let (yi, xi) = ((i / side) as i64, (i % side) as i64);
+            for j in 0..tokens {
+                let (yj, xj) = ((j / side) as i64, (j % side) as i64);
+                let (dy, dx) = (
+                    yi - yj + self.window as i64 - 1,
+                    xi - xj + self.window as i64 - 1,
+                );
+                index.push(dy * span + dx);
+            }
+        }
+        index
+    }
+}

@@ -1,0 +1,103 @@
+//! Frames prepared for training and validation: everything a step needs, as host arrays, so
+//! that a step never decodes images or pillarises. The model crate knows nothing of datasets;
+//! this is where a dataset's frames become its inputs.
+
+use std::path::Path;
+
+use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
+use bevworld_sensors::{Dataset, DatasetOptions};
+use bevworld_tokenizer::render::rays::Rays;
+use bevworld_tokenizer::{EncoderArrays, FrameInputs, FrameRays, InputError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("dataset {path}: {message}")]
+    Dataset { path: String, message: String },
+    #[error("dataset {path}, frame {index}: {source}")]
+    Frame {
+        path: String,
+        index: usize,
+        source: InputError,
+    },
+}
+
+/// One frame, ready for a step.
+#[derive(Clone, Debug)]
+pub struct TrainingFrame {
+    pub token: String,
+    pub encoder: EncoderArrays,
+    pub rays: FrameRays,
+    /// LiDAR rays whose range lies inside the rendered `[near, far]` (and, with
+    /// `render.escape_at_far`, whose return lies inside the voxel box), and those ranges.
+    pub lidar: Rays,
+    pub lidar_ranges: Vec<f32>,
+    /// The scene's returns (off the ego vehicle, see `EgoBody`) in the ego frame, for Chamfer.
+    pub lidar_points: Vec<[f32; 3]>,
+}
+
+/// Prepares up to `limit` keyframes of the dataset at `dir`.
+pub fn load_frames(
+    dir: &Path,
+    inputs: &FrameInputs,
+    limit: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<TrainingFrame>, DataError> {
+    let shown = dir.display().to_string();
+    let dataset =
+        Dataset::open(dir, &DatasetOptions::default()).map_err(|e| DataError::Dataset {
+            path: shown.clone(),
+            message: e.to_string(),
+        })?;
+    let count = dataset.len().min(limit);
+    if count == 0 {
+        return Err(DataError::Dataset {
+            path: shown,
+            message: "holds no frames".into(),
+        });
+    }
+    let render = &inputs.config().render;
+    let (near, far) = (render.near as f32, render.far as f32);
+    let bev = &inputs.config().bev;
+    // Whether ray i's return (ego frame) lies inside the voxel box.
+    let in_box = |rays: &Rays, i: usize, range: f32| {
+        let (o, d) = (rays.origins[i], rays.directions[i]);
+        [bev.x_range, bev.y_range, bev.z_range]
+            .iter()
+            .enumerate()
+            .all(|(axis, r)| (r[0]..r[1]).contains(&f64::from(o[axis] + range * d[axis])))
+    };
+    let mut pillarizer = Pillarizer::new(inputs.pillar_grid(), Limits::default());
+    let mut points = Vec::new();
+    let mut frames = Vec::with_capacity(count);
+    for index in 0..count {
+        let frame = dataset.read(index).map_err(|e| DataError::Dataset {
+            path: shown.clone(),
+            message: format!("frame {index}: {e}"),
+        })?;
+        ego_points_into(&frame.lidar, &mut points);
+        let pillars = pillarizer.run(&points);
+        let frame_error = |source| DataError::Frame {
+            path: shown.clone(),
+            index,
+            source,
+        };
+        let encoder = inputs
+            .encoder_arrays(&frame, &pillars)
+            .map_err(frame_error)?;
+        let rays = inputs.frame_rays(&frame).map_err(frame_error)?;
+        let inside: Vec<usize> = (0..rays.lidar.len())
+            .filter(|&i| (near..=far).contains(&rays.lidar_ranges[i]))
+            .filter(|&i| !render.escape_at_far || in_box(&rays.lidar, i, rays.lidar_ranges[i]))
+            .collect();
+        frames.push(TrainingFrame {
+            token: frame.frame_token.clone(),
+            encoder,
+            lidar: rays.lidar.subset(&inside),
+            lidar_ranges: inside.iter().map(|&i| rays.lidar_ranges[i]).collect(),
+            lidar_points: frame.lidar.scene_ego_points(),
+            rays,
+        });
+        progress(index + 1, count);
+    }
+    Ok(frames)
+}

@@ -1,0 +1,120 @@
+//! Checkpoints: `RUN/checkpoints/step-NNNNNNN/` holds the files a trainer names (its modules
+//! and optimiser states, as burnpack) and `state.json` (step, RNG state). A checkpoint is
+//! written into a temporary folder and renamed into place, and `RUN/checkpoints/latest` names
+//! the newest complete one, replaced atomically, so a crash at any instant leaves the last
+//! good checkpoint loadable.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CheckpointState {
+    /// Steps completed.
+    pub step: usize,
+    pub rng_state: u64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error("checkpoint {path}: {message}")]
+    Io { path: PathBuf, message: String },
+    #[error(
+        "no checkpoint to resume from in {path} (a run writes one every `checkpoint_every` steps)"
+    )]
+    None { path: PathBuf },
+}
+
+pub fn io_error(path: &Path, error: impl ToString) -> CheckpointError {
+    CheckpointError::Io {
+        path: path.to_path_buf(),
+        message: error.to_string(),
+    }
+}
+
+/// The folder of one checkpoint; a trainer names the files in it.
+pub struct CheckpointFiles {
+    pub dir: PathBuf,
+}
+
+impl CheckpointFiles {
+    /// The path of file `name` (e.g. `model.bpk`) in this checkpoint.
+    pub fn file(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    pub fn state(&self) -> PathBuf {
+        self.dir.join("state.json")
+    }
+}
+
+pub fn checkpoints_dir(run: &Path) -> PathBuf {
+    run.join("checkpoints")
+}
+
+fn step_name(step: usize) -> String {
+    format!("step-{step:07}")
+}
+
+/// A temporary folder to write checkpoint `step` into; `commit` moves it into place.
+pub fn staging(run: &Path, step: usize) -> Result<CheckpointFiles, CheckpointError> {
+    let dir = checkpoints_dir(run).join(format!("{}.partial", step_name(step)));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).map_err(|e| io_error(&dir, e))?;
+    Ok(CheckpointFiles { dir })
+}
+
+/// Writes `state.json`, renames the staged folder into place, points `latest` at it and keeps
+/// only the newest `keep` checkpoints.
+pub fn commit(
+    run: &Path,
+    staged: CheckpointFiles,
+    state: &CheckpointState,
+    keep: usize,
+) -> Result<PathBuf, CheckpointError> {
+    let text = serde_json::to_string_pretty(state).map_err(|e| io_error(&staged.state(), e))?;
+    std::fs::write(staged.state(), text).map_err(|e| io_error(&staged.state(), e))?;
+    let root = checkpoints_dir(run);
+    let name = step_name(state.step);
+    let target = root.join(&name);
+    let _ = std::fs::remove_dir_all(&target);
+    std::fs::rename(&staged.dir, &target).map_err(|e| io_error(&target, e))?;
+    let latest = root.join("latest");
+    let partial = root.join("latest.partial");
+    std::fs::write(&partial, &name).map_err(|e| io_error(&partial, e))?;
+    std::fs::rename(&partial, &latest).map_err(|e| io_error(&latest, e))?;
+
+    let mut complete: Vec<PathBuf> = std::fs::read_dir(&root)
+        .map_err(|e| io_error(&root, e))?
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.is_dir()
+                && p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with("step-") && !n.ends_with(".partial"))
+        })
+        .collect();
+    complete.sort();
+    let excess = complete.len().saturating_sub(keep.max(1));
+    for old in complete.into_iter().take(excess) {
+        let _ = std::fs::remove_dir_all(old);
+    }
+    Ok(target)
+}
+
+/// The newest complete checkpoint of a run.
+pub fn latest(run: &Path) -> Result<(CheckpointFiles, CheckpointState), CheckpointError> {
+    let root = checkpoints_dir(run);
+    let pointer = root.join("latest");
+    let name = std::fs::read_to_string(&pointer).map_err(|_| CheckpointError::None {
+        path: run.to_path_buf(),
+    })?;
+    let files = CheckpointFiles {
+        dir: root.join(name.trim()),
+    };
+    let text = std::fs::read_to_string(files.state()).map_err(|e| io_error(&files.state(), e))?;
+    let state: CheckpointState =
+        serde_json::from_str(&text).map_err(|e| io_error(&files.state(), e))?;
+    Ok((files, state))
+}

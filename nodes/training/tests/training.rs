@@ -1,0 +1,237 @@
+//! The training machinery against hand computations: the schedule, the generator's draws,
+//! the weights' moving average, the metrics log read by column name, the curves, and the
+//! data-parallel map, whose failures are the same with one thread as with many.
+
+use bevworld_blocks::seeded_init;
+use bevworld_training::ema::{effective_decay, update};
+use bevworld_training::metrics_log::{MetricsLog, Row, read_series};
+use bevworld_training::schedule::learning_rate;
+use bevworld_training::{Curve, SplitMix64, WorkerPanicked, parallel_map, plot_curves};
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::prelude::*;
+
+/// Every float a module holds, in module order.
+fn module_values<M: Module>(module: &M) -> Vec<f32> {
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let data = param.val().into_data().try_to_vec::<f32>().expect("f32");
+            self.0.extend(data);
+        }
+    }
+    let mut collect = Collect(Vec::new());
+    module.visit(&mut collect);
+    collect.0
+}
+
+#[test]
+fn the_schedule_warms_up_then_follows_the_cosine() {
+    // Warm-up: lr · (step + 1) / warmup.
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 0) - 1e-4).abs() < 1e-12);
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 9) - 1e-3).abs() < 1e-12);
+    // Start of the decay, its middle (half way between lr and the floor), and the end.
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 10) - 1e-3).abs() < 1e-12);
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 60) - 0.55e-3).abs() < 1e-12);
+    assert!((learning_rate(1e-3, 10, 110, 0.1, 110) - 1e-4).abs() < 1e-12);
+}
+
+#[test]
+fn draws_are_distinct_and_reproducible() {
+    let mut a = SplitMix64::new(5);
+    let picks = a.choose(10, 4);
+    let mut sorted = picks.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(sorted.len(), 4);
+    assert!(picks.iter().all(|&i| i < 10));
+    assert_eq!(SplitMix64::new(5).choose(10, 4), picks);
+    assert_eq!(a.choose(3, 10).len(), 3);
+}
+
+#[test]
+fn weighted_draws_follow_the_weights_and_are_distinct() {
+    // One index of three with weights 1 : 3 : 0, many times: about 1/4 and 3/4, never the third.
+    let mut rng = SplitMix64::new(11);
+    let mut counts = [0usize; 3];
+    for _ in 0..8000 {
+        counts[rng.choose_weighted(&[1.0, 3.0, 0.0], 1)[0]] += 1;
+    }
+    assert_eq!(counts[2], 0);
+    let share = counts[1] as f64 / 8000.0;
+    assert!(
+        (share - 0.75).abs() < 0.02,
+        "share of the weight-3 index: {share}"
+    );
+    // Several at once are distinct; asking for all gives all, the weight-0 index last.
+    let weights: Vec<f32> = (0..50).map(|i| (i % 7) as f32).collect();
+    let picks = SplitMix64::new(3).choose_weighted(&weights, 20);
+    let mut sorted = picks.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(sorted.len(), 20);
+    assert!(picks.iter().all(|&i| weights[i] > 0.0));
+    assert_eq!(SplitMix64::new(3).choose_weighted(&weights, 20), picks);
+    let all = SplitMix64::new(3).choose_weighted(&[2.0, 0.0, 1.0], 10);
+    assert_eq!(all.len(), 3);
+    assert_eq!(all[2], 1);
+}
+
+#[test]
+fn the_weight_average_follows_the_warmed_up_decay() {
+    use burn::module::ModuleMapper;
+    use burn::nn::LinearConfig;
+
+    // d = min(decay, (1 + t) / (10 + t)): 2/11 after step 1, 0.9 from step 80 on.
+    assert!((effective_decay(0.9, 1) - 2.0 / 11.0).abs() < 1e-12);
+    assert!((effective_decay(0.9, 80) - 81.0 / 90.0).abs() < 1e-12);
+    assert_eq!(effective_decay(0.9, 1000), 0.9);
+
+    struct Fill(f32);
+    impl ModuleMapper for Fill {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            let (id, tensor, mapper) = param.consume();
+            Param::from_mapped_value(id, tensor.zeros_like().add_scalar(self.0), mapper)
+        }
+    }
+    let device = Device::flex();
+    let linear = seeded_init(1, &device, |d| LinearConfig::new(3, 2).init(d));
+    let average = linear.clone().map(&mut Fill(1.0));
+    let model = linear.map(&mut Fill(3.0));
+    // Step 1: 2/11 · 1 + 9/11 · 3 = 29/11; step 1000: 0.9 · 1 + 0.1 · 3 = 1.2.
+    for (step, expected) in [(1, 29.0 / 11.0), (1000, 1.2)] {
+        let moved = update(average.clone(), &model, 0.9, step).expect("same module");
+        let values = module_values(&moved);
+        assert_eq!(values.len(), 3 * 2 + 2);
+        for v in values {
+            assert!((f64::from(v) - expected).abs() < 1e-6, "step {step}: {v}");
+        }
+    }
+    // Another module's parameters are refused, not blended.
+    let other = seeded_init(2, &device, |d| LinearConfig::new(2, 2).init(d));
+    let error = update(average, &other, 0.9, 1).expect_err("different shapes");
+    assert!(error.to_string().contains("differ in"), "{error}");
+}
+
+#[test]
+fn the_metrics_log_is_read_by_column_name_and_refuses_unknown_columns() {
+    let dir = tempfile::tempdir().expect("dir");
+    // The columns in an unusual order: readers must not care.
+    let columns = ["phase", "psnr_db", "step", "loss", "elapsed_s"];
+    let mut log = MetricsLog::open(dir.path(), &columns, None).expect("open");
+    for (step, loss) in [(1, 0.5), (2, 0.25)] {
+        log.append(&Row {
+            step,
+            phase: "train",
+            elapsed_s: 1.25,
+            values: vec![("loss", loss)],
+        })
+        .expect("append");
+    }
+    log.append(&Row {
+        step: 2,
+        phase: "val",
+        elapsed_s: 3.0,
+        values: vec![("psnr_db", 21.5)],
+    })
+    .expect("append");
+    let text = std::fs::read_to_string(log.path()).expect("read");
+    assert_eq!(
+        text,
+        "phase,psnr_db,step,loss,elapsed_s\ntrain,,1,0.500000,1.2\ntrain,,2,0.250000,1.2\nval,21.500000,2,,3.0\n"
+    );
+    assert_eq!(
+        read_series(log.path(), "train", "loss").expect("loss"),
+        [(1.0, 0.5), (2.0, 0.25)]
+    );
+    assert_eq!(
+        read_series(log.path(), "val", "psnr_db").expect("psnr"),
+        [(2.0, 21.5)]
+    );
+    let error = log
+        .append(&Row {
+            step: 3,
+            phase: "train",
+            elapsed_s: 4.0,
+            values: vec![("loss_typo", 1.0)],
+        })
+        .expect_err("an unknown column");
+    assert!(error.to_string().contains("loss_typo"), "{error}");
+    let missing = read_series(log.path(), "val", "chamfer_m2").expect_err("no such column");
+    assert!(missing.to_string().contains("chamfer_m2"), "{missing}");
+
+    // Resuming at step 1 drops the rows a crashed run wrote after its checkpoint.
+    let log = MetricsLog::open(dir.path(), &columns, Some(1)).expect("reopen");
+    let text = std::fs::read_to_string(log.path()).expect("read");
+    assert_eq!(text.lines().count(), 2, "{text}");
+}
+
+#[test]
+fn curves_are_drawn_from_the_named_columns() {
+    let dir = tempfile::tempdir().expect("dir");
+    let columns = ["step", "phase", "loss", "psnr_db", "elapsed_s"];
+    let mut log = MetricsLog::open(dir.path(), &columns, None).expect("open");
+    for step in 1..=20 {
+        log.append(&Row {
+            step,
+            phase: "train",
+            elapsed_s: 0.0,
+            values: vec![("loss", 1.0 / step as f64)],
+        })
+        .expect("append");
+    }
+    let png = dir.path().join("curves.png");
+    let curves = [
+        Curve {
+            title: "loss",
+            phase: "train",
+            column: "loss",
+            log_scale: true,
+        },
+        Curve {
+            title: "PSNR",
+            phase: "val",
+            column: "psnr_db",
+            log_scale: false,
+        },
+    ];
+    plot_curves(log.path(), &png, &curves).expect("curves");
+    let image = image::open(&png).expect("png").to_rgb8();
+    assert_eq!(image.width(), 2 * 420);
+    let absent = [Curve {
+        title: "Chamfer",
+        phase: "val",
+        column: "chamfer_m2",
+        log_scale: true,
+    }];
+    let error = plot_curves(log.path(), &png, &absent).expect_err("no such column");
+    assert!(error.to_string().contains("chamfer_m2"), "{error}");
+}
+
+#[test]
+fn a_panicking_item_fails_the_map_with_one_thread_as_with_many() {
+    let items: Vec<usize> = (0..6).collect();
+    for threads in [1, 2, 4] {
+        let result = parallel_map(
+            &items,
+            threads,
+            || (),
+            |_, &i| {
+                assert!(i != 3, "item three is broken");
+                i * 10
+            },
+        );
+        match result {
+            Err(WorkerPanicked { item, message }) => {
+                assert_eq!(item, 3, "{threads} threads");
+                assert!(message.contains("item three is broken"), "{message}");
+            }
+            Ok(values) => panic!("{threads} threads: a panic passed as {values:?}"),
+        }
+        let fine = parallel_map(&items, threads, || (), |_, &i| i * 10).expect("no panic");
+        assert_eq!(
+            fine,
+            [0, 10, 20, 30, 40, 50],
+            "{threads} threads keep item order"
+        );
+    }
+}

@@ -1,0 +1,2 @@
+//! Nothing to use: this crate only unifies third-party features across the workspace (see its
+//! `Cargo.toml`).
