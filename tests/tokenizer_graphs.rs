@@ -376,3 +376,46 @@ fn tokenizer_stats_matches_the_latents_it_summarises() {
         text(&missing)
     );
 }
+
+#[test]
+fn check_reads_no_weights_and_run_loads_them() {
+    use bevworld_tokenizer::{TokenizerConfig, save_weights};
+    use burn::prelude::Device;
+
+    // A real burnpack file of a wider decoder: a valid header, tensors of other shapes.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut wider =
+        TokenizerConfig::from_yaml_file(&common::repo().join("configs/models/tokenizer-tiny.yaml"))
+            .expect("tiny config");
+    wider.decoder.dim = 64;
+    let weights = dir.path().join("wider.bpk");
+    save_weights(&wider.init_seeded(1, &Device::flex()), &weights).expect("save");
+    let data = dir.path().join("data");
+    synth_small(&data);
+    let sets = [
+        format!("encode.weights={}", weights.display()),
+        format!("render.weights={}", weights.display()),
+        format!("source.data={}", data.display()),
+    ];
+    let with_sets = |command: &str| {
+        let mut args = vec![command.to_string(), "configs/graphs/reconstruct.yaml".into()];
+        for set in &sets {
+            args.extend(["--set".to_string(), set.clone()]);
+        }
+        args
+    };
+    // `check` validates what it can without loading a tensor: it accepts the file...
+    let checked = bevworld_owned(&with_sets("check"));
+    assert!(checked.status.success(), "{}", text(&checked));
+    // ...and `run` builds the nodes, loads the weights, and refuses them before any frame.
+    let mut run = with_sets("run");
+    run.push("--no-progress".into());
+    let refused = bevworld_owned(&run);
+    assert_eq!(refused.status.code(), Some(2), "{}", text(&refused));
+    let message = text(&refused);
+    assert!(
+        message.contains("weights") && message.contains("do not fit"),
+        "{message}"
+    );
+    assert!(!message.contains("panicked"), "{message}");
+}

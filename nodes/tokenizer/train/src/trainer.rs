@@ -596,10 +596,12 @@ impl Trainer {
             chamfer_sum += chamfer.unwrap_or(0.0);
         }
         let n = scores.len().max(1) as f64;
+        // With no camera scored there is no mean to report: `None`, never a PSNR of 0 dB.
+        let scored = cameras && images > 0;
         Ok(ValidationReport {
             frames: scores.len(),
-            psnr_db: cameras.then(|| psnr_sum / images.max(1) as f64),
-            ssim: cameras.then(|| ssim_sum / images.max(1) as f64),
+            psnr_db: scored.then(|| psnr_sum / images as f64),
+            ssim: scored.then(|| ssim_sum / images as f64),
             chamfer_m2: lidar.then(|| chamfer_sum / n),
             cameras_unscored: unscored,
         })
@@ -934,4 +936,38 @@ fn score_cameras(
         }
     }
     scores
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two 16 × 16 cameras: the rendering, and its target with `broken` cameras made NaN.
+    fn cameras(broken: &[usize]) -> (Vec<f32>, Vec<f32>) {
+        let plane = 3 * 16 * 16;
+        let rendered: Vec<f32> = (0..2 * plane).map(|i| (i % 7) as f32 / 8.0).collect();
+        let mut target: Vec<f32> = rendered.iter().map(|v| v + 0.1).collect();
+        for &c in broken {
+            target[c * plane] = f32::NAN;
+        }
+        (rendered, target)
+    }
+
+    #[test]
+    fn a_camera_the_metrics_refuse_is_counted_and_left_out_of_the_means() {
+        let (rendered, target) = cameras(&[]);
+        let all = score_cameras(&rendered, &target, 2, [2, 3, 16, 16]);
+        assert_eq!((all.scored, all.unscored), (2, 0));
+        // A uniform error of 0.1: 20 dB per camera.
+        assert!((all.psnr_sum - 40.0).abs() < 1e-3, "{}", all.psnr_sum);
+
+        let (rendered, target) = cameras(&[1]);
+        let one = score_cameras(&rendered, &target, 2, [2, 3, 16, 16]);
+        assert_eq!((one.scored, one.unscored), (1, 1));
+        assert!((one.psnr_sum - 20.0).abs() < 1e-3, "{}", one.psnr_sum);
+
+        // Fewer values than cameras: the missing one is counted too, not skipped.
+        let short = score_cameras(&rendered[..3 * 16 * 16], &target, 2, [2, 3, 16, 16]);
+        assert_eq!((short.scored, short.unscored), (1, 1));
+    }
 }

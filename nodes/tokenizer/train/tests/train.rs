@@ -162,16 +162,18 @@ fn frames_spread_over_threads_give_the_run_one_thread_gives() {
     config.rays.cameras_per_step = 2;
     let frames = frames().clone();
     let dir = tempfile::tempdir().expect("tempdir");
+    // Both start from the config's seed: the same weights, whatever the other tests of this
+    // binary draw meanwhile (initialisation is seeded per model).
     let mut one = trainer(config.clone(), model.clone(), frames.clone()).with_threads(1);
-    // Both start from the same parameters (initialisation draws from a device RNG that
-    // parallel tests share).
-    let start = dir.path().join("start");
-    one.save_checkpoint(&start).expect("step-0 checkpoint");
-    let mut two = trainer(config, model, frames)
-        .resume(&start)
-        .expect("resume from step 0")
-        .with_threads(2);
+    let mut two = trainer(config, model, frames).with_threads(2);
     assert_eq!((one.threads(), two.threads()), (1, 2));
+    assert!(
+        values(&one)
+            .iter()
+            .zip(&values(&two))
+            .all(|(x, y)| x.to_bits() == y.to_bits()),
+        "one seed gave two sets of initial weights"
+    );
     for step in 1..=3 {
         let (a, b) = (
             one.train_step().expect("one thread"),
@@ -848,4 +850,30 @@ fn a_run_with_a_weight_average_ships_and_validates_it() {
     assert!(
         plain.weight_average().is_none() && plain.validate_iterate().expect("validation").is_none()
     );
+}
+
+#[test]
+fn a_validation_frame_that_fails_fails_the_validation_with_any_thread_count() {
+    let (config, model) = configs();
+    let mut broken = frames()[1].clone();
+    // Half an image: building the encoder's input panics on the worker that takes the frame.
+    broken.encoder.images.truncate(broken.encoder.images.len() / 2);
+    let val = vec![frames()[0].clone(), broken];
+    for threads in [1, 2] {
+        let run = Trainer::new(
+            config.clone(),
+            model.clone(),
+            &Device::flex(),
+            frames().clone(),
+            val.clone(),
+        )
+        .expect("trainer")
+        .with_threads(threads);
+        match run.validate() {
+            Err(TrainError::ValidationWorker { source }) => {
+                assert_eq!(source.item, 1, "{threads} threads");
+            }
+            other => panic!("{threads} threads: a failed validation read {other:?}"),
+        }
+    }
 }
