@@ -141,7 +141,7 @@ fn check_reports_problems_with_positions_and_exits_2() {
 #[test]
 fn check_and_dot_on_the_shipped_graphs() {
     for graph in std::fs::read_dir(
-        std::path::PathBuf::from(
+        PathBuf::from(
             std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
         )
         .join("configs/graphs"),
@@ -358,7 +358,7 @@ fn ctrl_c_drains_and_exits_cleanly() {
         .unwrap()["items_out"]
         .as_u64()
         .unwrap();
-    assert!(produced >= 5 && produced < 1000, "produced {produced}");
+    assert!((5..1000).contains(&produced), "produced {produced}");
     // Every frame the source released reached the PLY sink (nothing in flight was lost).
     let written = std::fs::read_dir(out.path())
         .unwrap()

@@ -347,10 +347,10 @@ fn tokenizer_stats_matches_the_latents_it_summarises() {
             values[c].extend(plane.iter().map(|&v| f64::from(v)));
         }
     }
-    for c in 0..4 {
-        let n = values[c].len() as f64;
-        let mean = values[c].iter().sum::<f64>() / n;
-        let std = (values[c].iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    for (c, channel) in values.iter().enumerate() {
+        let n = channel.len() as f64;
+        let mean = channel.iter().sum::<f64>() / n;
+        let std = (channel.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
         assert!(
             (file.stats.mean[c] - mean).abs() < 1e-5 * (1.0 + mean.abs()),
             "channel {c} mean"
@@ -398,7 +398,10 @@ fn check_reads_no_weights_and_run_loads_them() {
         format!("source.data={}", data.display()),
     ];
     let with_sets = |command: &str| {
-        let mut args = vec![command.to_string(), "configs/graphs/reconstruct.yaml".into()];
+        let mut args = vec![
+            command.to_string(),
+            "configs/graphs/reconstruct.yaml".into(),
+        ];
         for set in &sets {
             args.extend(["--set".to_string(), set.clone()]);
         }

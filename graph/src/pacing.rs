@@ -33,7 +33,7 @@ impl Pacing {
             (Some(speed), None) if !(speed.is_finite() && speed >= 0.0) => {
                 Err(PacingError::Speed(speed))
             }
-            (Some(speed), None) if speed == 0.0 => Ok(Self::Unpaced),
+            (Some(0.0), None) => Ok(Self::Unpaced),
             (Some(speed), None) => Ok(Self::Recorded { speed }),
             (None, Some(rate)) if !(rate.is_finite() && rate > 0.0) => Err(PacingError::Rate(rate)),
             (None, Some(rate_hz)) => Ok(Self::Fixed { rate_hz }),

@@ -515,10 +515,9 @@ fn drive_source(mut thread: NodeThread, source: &mut dyn Source, shared: &Shared
                 // Sleep, but wake at once on abort.
                 if let Ok(()) | Err(RecvTimeoutError::Disconnected) =
                     abort.recv_timeout(wait).map(|_| ())
+                    && shared.stop.is_aborted()
                 {
-                    if shared.stop.is_aborted() {
-                        break;
-                    }
+                    break;
                 }
                 released = Clock::now();
             }
@@ -612,7 +611,7 @@ fn drive_consumer(
             };
             let depth = rx.len() + 1;
             thread.report.max_queue_depth = thread.report.max_queue_depth.max(depth);
-            if !deliver(&mut thread, &mut consumer, *port, message) {
+            if !deliver(&mut thread, consumer, *port, message) {
                 return thread.report;
             }
         }
@@ -643,7 +642,7 @@ fn drive_consumer(
                 Ok(message) => {
                     let depth = rx.len() + 1;
                     thread.report.max_queue_depth = thread.report.max_queue_depth.max(depth);
-                    if !deliver(&mut thread, &mut consumer, *port, message) {
+                    if !deliver(&mut thread, consumer, *port, message) {
                         return thread.report;
                     }
                 }
@@ -688,7 +687,7 @@ fn try_recv_spinning(rx: &Receiver<Message>, spin: Duration) -> Result<Message, 
         }
         polls += 1;
         // Let other nodes run on a busy machine; check the clock only now and then.
-        if polls % 16 == 0 {
+        if polls.is_multiple_of(16) {
             std::thread::yield_now();
             if started.elapsed() >= spin {
                 return Err(TryRecvError::Empty);

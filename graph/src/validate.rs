@@ -742,10 +742,10 @@ fn find_cycle(count: usize, edges: &[ResolvedEdge]) -> Option<Vec<usize>> {
                 let start = stack.iter().position(|&n| n == succ).unwrap_or(0);
                 return Some(stack[start..].to_vec());
             }
-            if state[succ] == 0 {
-                if let Some(cycle) = visit(succ, next, state, stack) {
-                    return Some(cycle);
-                }
+            if state[succ] == 0
+                && let Some(cycle) = visit(succ, next, state, stack)
+            {
+                return Some(cycle);
             }
         }
         stack.pop();
@@ -753,10 +753,10 @@ fn find_cycle(count: usize, edges: &[ResolvedEdge]) -> Option<Vec<usize>> {
         None
     }
     for start in 0..count {
-        if state[start] == 0 {
-            if let Some(cycle) = visit(start, &next, &mut state, &mut stack) {
-                return Some(cycle);
-            }
+        if state[start] == 0
+            && let Some(cycle) = visit(start, &next, &mut state, &mut stack)
+        {
+            return Some(cycle);
         }
     }
     None

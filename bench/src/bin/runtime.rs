@@ -93,10 +93,10 @@ impl Sink for Count {
             )));
         }
         self.expected_next += 1;
-        if let Some(blob) = &message.blob {
-            if !Arc::ptr_eq(blob, &pool()[message.seq as usize % POOL_SIZE]) {
-                COPIES.fetch_add(1, Ordering::Relaxed);
-            }
+        if let Some(blob) = &message.blob
+            && !Arc::ptr_eq(blob, &pool()[message.seq as usize % POOL_SIZE])
+        {
+            COPIES.fetch_add(1, Ordering::Relaxed);
         }
         Ok(())
     }

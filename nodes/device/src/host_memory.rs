@@ -22,5 +22,5 @@ pub fn keep_freed_memory() {
 #[allow(unsafe_code)] // a C call into the allocator
 pub fn purge_delay_ms() -> i64 {
     // SAFETY: reads one integer option.
-    i64::from(unsafe { libmimalloc_sys::mi_option_get(PURGE_DELAY) })
+    unsafe { libmimalloc_sys::mi_option_get(PURGE_DELAY) }
 }

@@ -62,7 +62,7 @@ pub fn parse_backend(name: &str) -> Result<BackendKind, DeviceError> {
 pub fn device_for(kind: BackendKind) -> Result<Device, DeviceError> {
     match kind {
         BackendKind::Flex => Ok(Device::flex()),
-        BackendKind::Wgpu => Ok(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)),
+        BackendKind::Wgpu => Ok(Device::wgpu(DeviceKind::DefaultDevice)),
         BackendKind::Cuda => cuda_device(),
     }
 }

@@ -166,7 +166,7 @@ fn missing_or_wrong_weights_are_clear_errors() {
 
     let dir = tempfile::tempdir().expect("tempdir");
     let absent = dir.path().join("absent.pth");
-    let err = load_inception(&absent, &device()).err().expect("error");
+    let err = load_inception(&absent, &device()).expect_err("error");
     assert!(matches!(err, FidError::NotFound { .. }));
     assert!(err.to_string().contains("absent.pth"));
 
@@ -179,7 +179,7 @@ fn missing_or_wrong_weights_are_clear_errors() {
 
     let garbage = dir.path().join("garbage.safetensors");
     std::fs::write(&garbage, b"\x08\x00\x00\x00\x00\x00\x00\x00not json").expect("write");
-    let err = load_inception(&garbage, &device()).err().expect("error");
+    let err = load_inception(&garbage, &device()).expect_err("error");
     assert!(matches!(err, FidError::Load { .. }), "{err}");
 
     // A state dict without the last block's pool branch: named, not silently random.
@@ -189,7 +189,7 @@ fn missing_or_wrong_weights_are_clear_errors() {
         &partial,
         Some(|path: &str, _| !path.contains("mixed_7c.branch_pool")),
     );
-    let err = load_inception(&partial, &device()).err().expect("error");
+    let err = load_inception(&partial, &device()).expect_err("error");
     let message = err.to_string();
     assert!(matches!(err, FidError::Missing { .. }), "{message}");
     assert!(message.contains("mixed_7c.branch_pool"), "{message}");

@@ -8,6 +8,7 @@
 //! - a pillar keeps its first `max_points_per_pillar` points in input order;
 //! - with more than `max_pillars` pillars, those whose centres are nearest the ego origin are
 //!   kept (ties by cell index), since near space matters most for driving.
+//!
 //! Output pillars are in row-major cell order (by iy, then ix).
 
 use bevworld_types::{PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};

@@ -130,19 +130,19 @@ impl Kitti {
                 ));
             }
             let us = (values[0] * 1e6).round() as i64;
-            if let Some(&previous) = times_us.last() {
-                if us <= previous {
-                    return Err(SensorError::field(
-                        &times_path,
-                        format!("line {}", number + 1),
-                        "time",
-                        format!(
-                            "non-monotonic timestamps: {} s is not after the previous {} s",
-                            values[0],
-                            previous as f64 * 1e-6
-                        ),
-                    ));
-                }
+            if let Some(&previous) = times_us.last()
+                && us <= previous
+            {
+                return Err(SensorError::field(
+                    &times_path,
+                    format!("line {}", number + 1),
+                    "time",
+                    format!(
+                        "non-monotonic timestamps: {} s is not after the previous {} s",
+                        values[0],
+                        previous as f64 * 1e-6
+                    ),
+                ));
             }
             times_us.push(us);
         }

@@ -45,7 +45,7 @@ pub fn decode_points(
     path: &Path,
 ) -> Result<(Vec<LidarPoint>, usize)> {
     let stride = layout.floats_per_point() * 4;
-    if bytes.len() % stride != 0 {
+    if !bytes.len().is_multiple_of(stride) {
         return Err(SensorError::file(
             path,
             format!(

@@ -249,18 +249,18 @@ pub fn parse_shard(text: &str) -> Result<(usize, usize), ShardError> {
 
 impl Source for DatasetSource {
     fn start(&mut self) -> Result<SourceInfo, NodeError> {
-        if !self.params.data.exists() {
-            if let Some(generate) = &self.params.generate {
-                if !same_folder(&generate.dir, &self.params.data) {
-                    return Err(NodeError::fatal(format!(
-                        "{}: dataset folder does not exist (the graph's `generate` block makes \
+        if !self.params.data.exists()
+            && let Some(generate) = &self.params.generate
+        {
+            if !same_folder(&generate.dir, &self.params.data) {
+                return Err(NodeError::fatal(format!(
+                    "{}: dataset folder does not exist (the graph's `generate` block makes \
                          {}, not this folder)",
-                        self.params.data.display(),
-                        generate.dir.display()
-                    )));
-                }
-                self.generate(generate)?;
+                    self.params.data.display(),
+                    generate.dir.display()
+                )));
             }
+            self.generate(generate)?;
         }
         let options = DatasetOptions {
             format: self.params.format,

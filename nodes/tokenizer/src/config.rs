@@ -213,7 +213,8 @@ impl TokenizerConfig {
             }
         }
         let stride = self.lidar_backbone.stride();
-        if self.bev.pillar_grid == 0 || stride == 0 || self.bev.pillar_grid % stride != 0 {
+        if self.bev.pillar_grid == 0 || stride == 0 || !self.bev.pillar_grid.is_multiple_of(stride)
+        {
             problems.push(ConfigProblem::new(
                 "bev.pillar_grid",
                 format!(
@@ -255,7 +256,7 @@ impl TokenizerConfig {
                 ),
             ));
         }
-        if self.decoder.dim % 2 != 0 {
+        if !self.decoder.dim.is_multiple_of(2) {
             problems.push(ConfigProblem::new(
                 "decoder.dim",
                 "must be even (patch expanding halves it)",

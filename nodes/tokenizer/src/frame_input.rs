@@ -53,6 +53,9 @@ pub enum InputError {
     },
 }
 
+/// A frame's pillars as host arrays: point features, point validity, cells.
+type PillarArrays = (Vec<f32>, Vec<f32>, Vec<i64>);
+
 /// `EncoderInput` as host arrays (see `FrameInputs::encoder_arrays`).
 #[derive(Clone, Debug)]
 pub struct EncoderArrays {
@@ -245,7 +248,7 @@ impl FrameInputs {
         &self,
         frame: &SensorFrame,
         pillars: &Pillars,
-    ) -> Result<(Vec<f32>, Vec<f32>, Vec<i64>), InputError> {
+    ) -> Result<PillarArrays, InputError> {
         let n = self.config.bev.pillar_grid;
         let bev = &self.config.bev;
         let grid = &pillars.grid;

@@ -80,7 +80,7 @@ fn flex_and_wgpu_agree_on_the_tiny_tokenizer() {
     save_weights(&config.init_seeded(0, &Device::flex()), &weights).expect("save");
 
     let (latent_cpu, voxels_cpu) = run(&config, &weights, &Device::flex());
-    let gpu = Device::wgpu(burn::tensor::DeviceKind::DefaultDevice);
+    let gpu = Device::wgpu(DeviceKind::DefaultDevice);
     let (latent_gpu, voxels_gpu) = run(&config, &weights, &gpu);
     for (name, a, b) in [
         ("latent", &latent_cpu, &latent_gpu),

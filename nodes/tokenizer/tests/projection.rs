@@ -72,7 +72,7 @@ fn fusion_projection_matches_inspect_on_the_real_sample() {
                 assert_eq!(hits.normalized[index], [0.0, 0.0]);
             }
         }
-        assert!(hits.valid.iter().any(|&v| v == 0.0));
+        assert!(hits.valid.contains(&0.0));
     }
     assert!(compared > 10_000, "only {compared} points compared");
 }

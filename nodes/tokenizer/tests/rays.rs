@@ -71,7 +71,7 @@ fn lidar_rays_rebuild_the_real_sweep_from_its_ranges() {
 
 #[test]
 fn spherical_angles_round_trip() {
-    for &(inclination, azimuth) in &[(0.0, 0.0), (-0.4, 3.0), (0.2, -1.7), (-0.05, 1.5707)] {
+    for &(inclination, azimuth) in &[(0.0, 0.0), (-0.4, 3.0), (0.2, -1.7), (-0.05, 1.5)] {
         let direction = spherical_direction(inclination, azimuth);
         let (i, a) = inclination_azimuth(direction * 7.5);
         assert!((i - inclination).abs() < 1e-12 && (a - azimuth).abs() < 1e-12);

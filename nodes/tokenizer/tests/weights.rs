@@ -37,9 +37,7 @@ fn weights_round_trip_and_mismatches_are_named() {
     );
 
     let missing = dir.path().join("absent.bpk");
-    let err = load_weights(&config, &missing, &device)
-        .err()
-        .expect("error");
+    let err = load_weights(&config, &missing, &device).expect_err("error");
     assert!(matches!(err, WeightsError::NotFound { .. }));
     assert!(err.to_string().contains("absent.bpk"));
 
@@ -49,9 +47,7 @@ fn weights_round_trip_and_mismatches_are_named() {
     wider.decoder.dim = 64;
     let wide_path = dir.path().join("wider.bpk");
     save_weights(&wider.init_seeded(1, &device), &wide_path).expect("save");
-    let err = load_weights(&config, &wide_path, &device)
-        .err()
-        .expect("error");
+    let err = load_weights(&config, &wide_path, &device).expect_err("error");
     let message = err.to_string();
     assert!(matches!(err, WeightsError::Mismatch { .. }), "{message}");
     assert!(message.contains("tokenizer-tiny"), "{message}");

@@ -68,7 +68,7 @@ pub struct LatentStatsAccumulator {
 impl LatentStatsAccumulator {
     /// Adds one channel-major `[C, H, W]` latent with `channels` channels.
     pub fn add(&mut self, latent: &[f32], channels: usize) -> Result<(), LatentStatsError> {
-        if channels == 0 || latent.is_empty() || latent.len() % channels != 0 {
+        if channels == 0 || latent.is_empty() || !latent.len().is_multiple_of(channels) {
             return Err(LatentStatsError::Shape {
                 values: latent.len(),
                 channels,

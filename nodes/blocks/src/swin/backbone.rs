@@ -54,7 +54,7 @@ impl SwinConfig {
         }
         for (stage, &heads) in self.heads.iter().enumerate() {
             let dim = self.embed_dim << stage;
-            if heads == 0 || dim % heads != 0 {
+            if heads == 0 || !dim.is_multiple_of(heads) {
                 problems.push(ConfigProblem::new(
                     format!("{name}.heads[{stage}]"),
                     format!("{heads} heads do not divide {dim} channels"),

@@ -257,10 +257,10 @@ fn intersect_rounded_slab(
 ) -> Option<SurfaceHit> {
     let mut best: Option<SurfaceHit> = None;
     let mut consider = |hit: Option<SurfaceHit>| {
-        if let Some(hit) = hit {
-            if best.is_none_or(|b| hit.t < b.t) {
-                best = Some(hit);
-            }
+        if let Some(hit) = hit
+            && best.is_none_or(|b| hit.t < b.t)
+        {
+            best = Some(hit);
         }
     };
     // Top and bottom faces.
@@ -282,10 +282,10 @@ fn intersect_rounded_slab(
     let inner_x = DVec2::new(half.x, half.y - radius);
     let inner_y = DVec2::new(half.x - radius, half.y);
     for inner in [inner_x, inner_y] {
-        if let Some(hit) = intersect_box(ray, center, inner, 0.0, z_min, z_max, t_max) {
-            if hit.normal.z == 0.0 {
-                consider(Some(hit));
-            }
+        if let Some(hit) = intersect_box(ray, center, inner, 0.0, z_min, z_max, t_max)
+            && hit.normal.z == 0.0
+        {
+            consider(Some(hit));
         }
     }
     // Corner cylinders.

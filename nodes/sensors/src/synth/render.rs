@@ -126,10 +126,9 @@ impl Snapshot {
                 if let Some(hit) = self.solids[index as usize]
                     .shape
                     .intersect(ray, bound.min(best.map_or(f64::INFINITY, |b| b.0)))
+                    && best.is_none_or(|b| hit.t < b.0)
                 {
-                    if best.is_none_or(|b| hit.t < b.0) {
-                        best = Some((hit.t, hit.normal, index as usize));
-                    }
+                    best = Some((hit.t, hit.normal, index as usize));
                 }
             }
             if best.is_some_and(|b| b.0 <= t_cell_end) {

@@ -17,7 +17,7 @@ pub enum DataError {
     Frame {
         path: String,
         index: usize,
-        source: InputError,
+        source: Box<InputError>,
     },
 }
 
@@ -79,7 +79,7 @@ pub fn load_frames(
         let frame_error = |source| DataError::Frame {
             path: shown.clone(),
             index,
-            source,
+            source: Box::new(source),
         };
         let encoder = inputs
             .encoder_arrays(&frame, &pillars)

@@ -302,7 +302,7 @@ impl Trainer {
             discriminator_optimizer: config.optimizer.adamw(),
             discriminator,
             perceptual,
-            rng: SplitMix64::new(config.seed ^ 0x5eed_0f_da7a),
+            rng: SplitMix64::new(config.seed ^ 0x5e_ed0f_da7a),
             step: 0,
             depths: model_config.render.sample_depths(),
             placement: model_config.voxel_placement(),

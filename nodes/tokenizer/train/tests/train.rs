@@ -161,7 +161,7 @@ fn frames_spread_over_threads_give_the_run_one_thread_gives() {
     config.rays.lidar_rays = 256;
     config.rays.cameras_per_step = 2;
     let frames = frames().clone();
-    let dir = tempfile::tempdir().expect("tempdir");
+    let _dir = tempfile::tempdir().expect("tempdir");
     // Both start from the config's seed: the same weights, whatever the other tests of this
     // binary draw meanwhile (initialisation is seeded per model).
     let mut one = trainer(config.clone(), model.clone(), frames.clone()).with_threads(1);
@@ -857,7 +857,10 @@ fn a_validation_frame_that_fails_fails_the_validation_with_any_thread_count() {
     let (config, model) = configs();
     let mut broken = frames()[1].clone();
     // Half an image: building the encoder's input panics on the worker that takes the frame.
-    broken.encoder.images.truncate(broken.encoder.images.len() / 2);
+    broken
+        .encoder
+        .images
+        .truncate(broken.encoder.images.len() / 2);
     let val = vec![frames()[0].clone(), broken];
     for threads in [1, 2] {
         let run = Trainer::new(
