@@ -53,17 +53,20 @@ impl Checked {
     }
 }
 
-/// One registered node kind.
+/// One registered node kind: its declaration (name, role, typed ports; `NodeKind` reads as
+/// its `KindSpec`) and its parameter checker.
 #[derive(Clone)]
 pub struct NodeKind {
-    pub name: &'static str,
-    pub summary: &'static str,
-    pub role: Role,
-    pub inputs: Vec<PortSpec>,
-    pub outputs: Vec<PortSpec>,
-    /// How several inputs are grouped unless the graph says otherwise.
-    pub default_sync: SyncMode,
+    spec: KindSpec,
     checker: Arc<Checker>,
+}
+
+impl std::ops::Deref for NodeKind {
+    type Target = KindSpec;
+
+    fn deref(&self) -> &KindSpec {
+        &self.spec
+    }
 }
 
 impl NodeKind {
@@ -76,33 +79,37 @@ impl NodeKind {
     pub fn build(&self, params: &serde_json::Value) -> Result<Node, ParamError> {
         self.check(params)?.build()
     }
-
-    pub fn input(&self, name: &str) -> Option<(usize, &PortSpec)> {
-        self.inputs
-            .iter()
-            .enumerate()
-            .find(|(_, port)| port.name == name)
-    }
-
-    pub fn output(&self, name: &str) -> Option<(usize, &PortSpec)> {
-        self.outputs
-            .iter()
-            .enumerate()
-            .find(|(_, port)| port.name == name)
-    }
 }
 
 /// The declaration part of a kind, before its builder is attached.
+#[derive(Clone)]
 pub struct KindSpec {
     pub name: &'static str,
     pub summary: &'static str,
     pub role: Role,
     pub inputs: Vec<PortSpec>,
     pub outputs: Vec<PortSpec>,
+    /// How several inputs are grouped unless the graph says otherwise.
     pub default_sync: SyncMode,
 }
 
 impl KindSpec {
+    /// The input port `name` and its index.
+    pub fn input_port(&self, name: &str) -> Option<(usize, &PortSpec)> {
+        self.inputs
+            .iter()
+            .enumerate()
+            .find(|(_, port)| port.name == name)
+    }
+
+    /// The output port `name` and its index.
+    pub fn output_port(&self, name: &str) -> Option<(usize, &PortSpec)> {
+        self.outputs
+            .iter()
+            .enumerate()
+            .find(|(_, port)| port.name == name)
+    }
+
     pub fn source(name: &'static str, summary: &'static str) -> Self {
         Self {
             name,
@@ -204,12 +211,7 @@ impl Registry {
         self.kinds.insert(
             spec.name,
             NodeKind {
-                name: spec.name,
-                summary: spec.summary,
-                role: spec.role,
-                inputs: spec.inputs,
-                outputs: spec.outputs,
-                default_sync: spec.default_sync,
+                spec,
                 checker: Arc::new(checker),
             },
         );

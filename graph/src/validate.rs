@@ -559,30 +559,24 @@ fn check_edges(
         else {
             continue;
         };
-        let from_port = from_kind.output(&from_port_name);
-        if from_port.is_none() {
-            finder.at(
-                loc(&edge.from),
-                format!(
-                    "node '{}' ({}) has no output port '{from_port_name}'",
-                    node_ids[from_node], from_kind.name
-                ),
-                Some(port_list("outputs", &from_kind.outputs)),
-            );
-        }
-        let to_port = to_kind.input(&to_port_name);
+        let from_port = port_of(
+            finder,
+            &edge.from,
+            from_kind,
+            &node_ids[from_node],
+            &from_port_name,
+            false,
+        );
+        let to_port = port_of(
+            finder,
+            &edge.to,
+            to_kind,
+            &node_ids[to_node],
+            &to_port_name,
+            true,
+        );
         if let Some((index, _)) = to_port {
             connected[to_node][index] = true;
-        }
-        if to_port.is_none() {
-            finder.at(
-                loc(&edge.to),
-                format!(
-                    "node '{}' ({}) has no input port '{to_port_name}'",
-                    node_ids[to_node], to_kind.name
-                ),
-                Some(port_list("inputs", &to_kind.inputs)),
-            );
         }
         let (Some((from_port, from_spec)), Some((to_port, to_spec))) = (from_port, to_port) else {
             continue;
@@ -680,6 +674,33 @@ fn endpoint(
             None
         }
     }
+}
+
+/// The output (or, with `input`, the input) port `name` of node `id`, or a problem at `spanned`.
+fn port_of<'k>(
+    finder: &mut Finder,
+    spanned: &Spanned<String>,
+    kind: &'k NodeKind,
+    id: &str,
+    name: &str,
+    input: bool,
+) -> Option<(usize, &'k crate::port::PortSpec)> {
+    let (found, direction, ports) = if input {
+        (kind.input_port(name), "input", &kind.inputs)
+    } else {
+        (kind.output_port(name), "output", &kind.outputs)
+    };
+    if found.is_none() {
+        finder.at(
+            loc(spanned),
+            format!(
+                "node '{id}' ({}) has no {direction} port '{name}'",
+                kind.name
+            ),
+            Some(port_list(&format!("{direction}s"), ports)),
+        );
+    }
+    found
 }
 
 fn port_list(what: &str, ports: &[crate::port::PortSpec]) -> String {

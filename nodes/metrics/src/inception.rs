@@ -127,12 +127,13 @@ impl InceptionA {
             self.branch3x3dbl_2
                 .forward(self.branch3x3dbl_1.forward(x.clone())),
         );
-        let bp = self.branch_pool.forward(self.pool.forward(x));
-        Tensor::cat(vec![b1, b5, b3, bp], 1)
+        let pooled = self.pool.forward(x);
+        Tensor::cat(vec![b1, b5, b3, self.branch_pool.forward(pooled)], 1)
     }
 }
 
-/// Mixed_6a: the first grid reduction, 35x35 -> 17x17.
+/// Mixed_6a: the first grid reduction, 35x35 -> 17x17: a strided 3x3, a strided double 3x3,
+/// and the input max-pooled, concatenated.
 #[derive(Module, Debug)]
 pub struct InceptionB {
     branch3x3: BasicConv2d,
@@ -222,6 +223,7 @@ impl InceptionC {
 pub struct InceptionD {
     branch3x3_1: BasicConv2d,
     branch3x3_2: BasicConv2d,
+    /// 1x1, 1x7 and 7x1, then the strided 3x3.
     branch7x7x3_1: BasicConv2d,
     branch7x7x3_2: BasicConv2d,
     branch7x7x3_3: BasicConv2d,

@@ -15,49 +15,32 @@ pub struct CameraMount {
     pub offset_us: i64,
 }
 
+/// One camera's mount, a line of the table below.
+const fn mount(
+    channel: CameraChannel,
+    translation: [f64; 3],
+    rotation: [f64; 4],
+    intrinsics_1600: [f64; 4],
+    offset_us: i64,
+) -> CameraMount {
+    CameraMount {
+        channel,
+        translation,
+        rotation,
+        intrinsics_1600,
+        offset_us,
+    }
+}
+
+#[rustfmt::skip] // a table: one camera a line
 pub const CAMERAS: [CameraMount; 6] = [
-    CameraMount {
-        channel: CameraChannel::Front,
-        translation: [1.7008, 0.0159, 1.5110],
-        rotation: [0.499802, -0.503032, 0.499780, -0.497371],
-        intrinsics_1600: [1266.42, 1266.42, 816.27, 491.51],
-        offset_us: -35_491,
-    },
-    CameraMount {
-        channel: CameraChannel::FrontRight,
-        translation: [1.5508, -0.4934, 1.4957],
-        rotation: [0.206035, -0.202694, 0.682451, -0.671361],
-        intrinsics_1600: [1260.85, 1260.85, 807.97, 495.33],
-        offset_us: -27_612,
-    },
-    CameraMount {
-        channel: CameraChannel::BackRight,
-        translation: [1.0149, -0.4806, 1.5624],
-        rotation: [0.122810, -0.132401, -0.700431, 0.690496],
-        intrinsics_1600: [1259.51, 1259.51, 807.25, 501.20],
-        offset_us: -20_058,
-    },
-    CameraMount {
-        channel: CameraChannel::Back,
-        translation: [0.0283, 0.0035, 1.5791],
-        rotation: [0.503787, -0.497402, -0.494185, 0.504550],
-        intrinsics_1600: [809.22, 809.22, 829.22, 481.78],
-        offset_us: -10_426,
-    },
-    CameraMount {
-        channel: CameraChannel::BackLeft,
-        translation: [1.0357, 0.4848, 1.5910],
-        rotation: [0.692419, -0.703162, -0.116483, 0.112033],
-        intrinsics_1600: [1256.74, 1256.74, 792.11, 492.78],
-        offset_us: -528,
-    },
-    CameraMount {
-        channel: CameraChannel::FrontLeft,
-        translation: [1.5239, 0.4946, 1.5093],
-        rotation: [0.675727, -0.673627, 0.212140, -0.211228],
-        intrinsics_1600: [1272.60, 1272.60, 826.62, 479.75],
-        offset_us: -43_107,
-    },
+    // channel, translation (m), rotation [w, x, y, z], fx fy cx cy at 1600 x 900, offset (µs)
+    mount(CameraChannel::Front, [1.7008, 0.0159, 1.5110], [0.499802, -0.503032, 0.499780, -0.497371], [1266.42, 1266.42, 816.27, 491.51], -35_491),
+    mount(CameraChannel::FrontRight, [1.5508, -0.4934, 1.4957], [0.206035, -0.202694, 0.682451, -0.671361], [1260.85, 1260.85, 807.97, 495.33], -27_612),
+    mount(CameraChannel::BackRight, [1.0149, -0.4806, 1.5624], [0.122810, -0.132401, -0.700431, 0.690496], [1259.51, 1259.51, 807.25, 501.20], -20_058),
+    mount(CameraChannel::Back, [0.0283, 0.0035, 1.5791], [0.503787, -0.497402, -0.494185, 0.504550], [809.22, 809.22, 829.22, 481.78], -10_426),
+    mount(CameraChannel::BackLeft, [1.0357, 0.4848, 1.5910], [0.692419, -0.703162, -0.116483, 0.112033], [1256.74, 1256.74, 792.11, 492.78], -528),
+    mount(CameraChannel::FrontLeft, [1.5239, 0.4946, 1.5093], [0.675727, -0.673627, 0.212140, -0.211228], [1272.60, 1272.60, 826.62, 479.75], -43_107),
 ];
 
 pub const LIDAR_TRANSLATION: [f64; 3] = [0.943713, 0.0, 1.84023];

@@ -180,14 +180,13 @@ pub fn plan_route(
                 let radius = 4.0;
                 let c = center + right_of(h) * (half_lane + radius) - h * (half_lane + radius);
                 let entry = c - right_of(h) * radius;
-                push_line(&mut path, position, entry);
-                let start_vec = entry - c;
-                path.push(Segment::Arc {
-                    center: c,
-                    radius,
-                    start_angle: start_vec.y.atan2(start_vec.x),
-                    sweep: -std::f64::consts::FRAC_PI_2,
-                });
+                turn_arc(
+                    &mut path,
+                    position,
+                    entry,
+                    (c, radius),
+                    -std::f64::consts::FRAC_PI_2,
+                );
                 h = right_of(h);
                 position = center + right_of(h) * half_lane + h * (half_lane + radius);
             }
@@ -195,14 +194,13 @@ pub fn plan_route(
                 let radius = half_lane + roads.half_width;
                 let c = center + (right_of(h) + h) * (half_lane - radius);
                 let entry = c + right_of(h) * radius;
-                push_line(&mut path, position, entry);
-                let start_vec = entry - c;
-                path.push(Segment::Arc {
-                    center: c,
-                    radius,
-                    start_angle: start_vec.y.atan2(start_vec.x),
-                    sweep: std::f64::consts::FRAC_PI_2,
-                });
+                turn_arc(
+                    &mut path,
+                    position,
+                    entry,
+                    (c, radius),
+                    std::f64::consts::FRAC_PI_2,
+                );
                 h = -right_of(h);
                 position = center + right_of(h) * half_lane + h * (radius - half_lane);
             }
@@ -227,6 +225,25 @@ fn push_line(path: &mut Path, from: DVec2, to: DVec2) {
             length,
         });
     }
+}
+
+/// A straight run from `from` to `entry`, then an arc of `radius` about `center` through
+/// `sweep` radians (negative: clockwise, a right turn).
+fn turn_arc(
+    path: &mut Path,
+    from: DVec2,
+    entry: DVec2,
+    (center, radius): (DVec2, f64),
+    sweep: f64,
+) {
+    push_line(path, from, entry);
+    let start_vec = entry - center;
+    path.push(Segment::Arc {
+        center,
+        radius,
+        start_angle: start_vec.y.atan2(start_vec.x),
+        sweep,
+    });
 }
 
 /// Another vehicle: a body following a path with a varying speed.
