@@ -25,6 +25,11 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
     about = "BEVWorld: a multimodal world model for autonomous driving, as a dataflow graph of actors"
 )]
 struct Cli {
+    /// Threads for the tensor ops of inference (rayon's global pool). Default: one per core,
+    /// or RAYON_NUM_THREADS. Training spreads frames over its own threads and runs each
+    /// frame's ops serially, so it never oversubscribes the cores.
+    #[arg(long, global = true, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
+    threads: Option<u16>,
     #[command(subcommand)]
     command: Command,
 }
@@ -98,6 +103,15 @@ fn main() -> ExitCode {
     bevworld_device::keep_freed_memory();
     init_tracing();
     let cli = Cli::parse();
+    if let Some(threads) = cli.threads {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(usize::from(threads))
+            .build_global();
+        if let Err(error) = pool {
+            eprintln!("error: --threads {threads}: {error}");
+            return ExitCode::from(2);
+        }
+    }
     match dispatch(cli.command) {
         Ok(code) => code,
         Err(error) => {

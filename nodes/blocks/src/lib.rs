@@ -8,6 +8,7 @@
 // Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
+pub mod activation;
 pub mod adaln;
 pub mod attention;
 pub mod cache;
@@ -18,6 +19,7 @@ pub mod module_file;
 pub mod swin;
 pub mod torch_weights;
 
+pub use activation::gelu;
 pub use adaln::{AdaLnModulation, AdaLnModulationConfig, modulate};
 pub use attention::{MASKED, MultiHeadAttention, MultiHeadAttentionConfig, causal_mask};
 pub use cache::TensorCache;

@@ -1,8 +1,10 @@
-//! The transformer's position-wise MLP: `Linear → GELU → Linear`.
+//! The transformer's position-wise MLP: `Linear → GELU → Linear` (GELU from `activation`,
+//! vectorised for CPU inference).
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::gelu;
+
+use crate::activation::gelu;
 
 /// `fc2(GELU(fc1(x)))`, the one definition Swin blocks (whose weights name the layers `fc1`
 /// and `fc2` directly) and `Mlp` share.

@@ -11,6 +11,7 @@ use bevworld_types::{PILLAR_FEATURES, PillarGrid, Pillars, Pose, SensorFrame};
 use burn::prelude::*;
 use glam::DVec3;
 use image::imageops::FilterType;
+use rayon::prelude::*;
 use thiserror::Error;
 
 use crate::config::TokenizerConfig;
@@ -180,11 +181,14 @@ impl FrameInputs {
     pub fn camera_planes(&self, frame: &SensorFrame) -> Result<Vec<f32>, InputError> {
         self.check_cameras(frame)?;
         let [h, w] = self.config.image_size;
-        let mut planes = Vec::with_capacity(frame.cameras.len() * 3 * h * w);
-        for camera in &frame.cameras {
-            planes.extend(image_planes(&camera.image, w, h));
-        }
-        Ok(planes)
+        // One camera per task: resizing six full-size images is the encoder's biggest host
+        // cost, and the cameras are independent.
+        let per_camera: Vec<Vec<f32>> = frame
+            .cameras
+            .par_iter()
+            .map(|camera| image_planes(&camera.image, w, h))
+            .collect();
+        Ok(per_camera.concat())
     }
 
     /// Everything `Tokenizer::encode` reads for this frame.

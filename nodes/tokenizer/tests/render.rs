@@ -242,3 +242,89 @@ fn weights_sum_to_the_ray_opacity_and_never_above_one() {
         assert!((sum - opacity).abs() < 1e-4, "ray {r}: {sum} vs {opacity}");
     }
 }
+
+/// A field whose voxel blocks are split (`r` = 3) keeps its rows in the head's order; the
+/// per-axis row terms that sampling adds up must give exactly `FieldShape::row`.
+#[test]
+fn row_terms_add_up_to_the_row_of_every_voxel() {
+    let shape = bevworld_tokenizer::render::FieldShape {
+        channels: 2,
+        height: 3,
+        cells_y: 4,
+        cells_x: 5,
+        split: 3,
+    };
+    let [x_terms, y_terms, z_terms] = shape.row_terms();
+    assert_eq!(
+        [z_terms.len(), y_terms.len(), x_terms.len()],
+        shape.voxels()
+    );
+    let mut seen = vec![false; shape.rows()];
+    for (iz, z_term) in z_terms.iter().enumerate() {
+        for (iy, y_term) in y_terms.iter().enumerate() {
+            for (ix, x_term) in x_terms.iter().enumerate() {
+                let row = shape.row(ix, iy, iz);
+                assert_eq!((x_term + y_term + z_term) as usize, row);
+                assert!(!seen[row], "row {row} given twice");
+                seen[row] = true;
+            }
+        }
+    }
+    assert!(seen.iter().all(|&s| s), "every row is some voxel's");
+}
+
+/// Sampling a split field (the head's layout) equals sampling the same voxels as a plain grid,
+/// at points inside, on the border and outside, many more than one parallel task holds.
+#[test]
+fn a_split_field_samples_like_its_grid() {
+    let device = device();
+    let (channels, height, cells, split) = (3, 4, 6, 2);
+    let block = height * split * split * channels;
+    let head: Vec<f32> = (0..cells * cells * block)
+        .map(|i| ((i * 37) % 101) as f32 * 0.01 - 0.5)
+        .collect();
+    let head = Tensor::<4>::from_data(TensorData::new(head, [1, cells, cells, block]), &device);
+    let split_field = VoxelField::from_head(head, channels, height, split);
+    let grid_field = VoxelField::from_grid(split_field.to_grid());
+    let points: Vec<[f32; 3]> = (0..40_000)
+        .map(|i| {
+            let t = i as f32;
+            [
+                (t * 0.137).sin() * 7.0 + 5.5,
+                (t * 0.071).cos() * 7.0 + 5.5,
+                (t * 0.029).sin() * 2.6 + 1.5,
+            ]
+        })
+        .collect();
+    let split_values = values(sample_trilinear(&split_field, &points));
+    let grid_values = values(sample_trilinear(&grid_field, &points));
+    assert_eq!(split_values, grid_values);
+    assert!(split_values.iter().any(|&v| v != 0.0) && split_values.contains(&0.0));
+}
+
+/// Points no ray should produce (NaN, infinite, beyond the i32 range) read nothing: exactly 0,
+/// never NaN and never a wrapped-around voxel.
+#[test]
+fn nan_infinite_and_huge_points_sample_zero() {
+    let bad = [
+        [f32::NAN, 1.0, 1.0],
+        [1.0, f32::NAN, 1.0],
+        [1.0, 1.0, f32::NAN],
+        [f32::INFINITY, 1.0, 1.0],
+        [f32::NEG_INFINITY, 1.0, 1.0],
+        [3e9, 1.0, 1.0],
+        [-3e9, 1.0, 1.0],
+        [1.0, 1.0, 4.3e9],
+    ];
+    let got = sample(&bad);
+    assert_eq!(got, vec![0.0; bad.len() * C], "{got:?}");
+    // Negative coordinates floor down, not toward zero: -0.25 lies between voxel -1 (outside,
+    // weight 0.25) and voxel 0 (weight 0.75).
+    let edge = sample(&[[-0.25, 1.0, 1.0]]);
+    for (c, value) in edge.iter().enumerate() {
+        assert!(
+            (value - 0.75 * voxel(c, 1, 1, 0)).abs() < 1e-6,
+            "channel {c}: {value}"
+        );
+    }
+}

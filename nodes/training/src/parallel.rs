@@ -8,6 +8,13 @@
 //! behind one mutex, and the first backward would consume the other's tape. With fresh leaves
 //! each thread's graph is its own, the threads run in parallel, and the gradients they return
 //! are keyed by the shared parameter ids, so they add up as if one thread had computed them.
+//!
+//! How the cores are shared: the items are the parallelism. Each worker runs its items inside
+//! a rayon pool of one thread, so the tensor ops under it (burn's CPU backend fans out to
+//! rayon) run serially on that worker instead of competing with the other workers for the
+//! global pool. Two frames on two cores never become four busy threads, and an item's result
+//! cannot depend on how many threads an op was split over, so the run does not depend on the
+//! thread count. Inference outside this function uses the global pool, sized to the cores.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
@@ -65,15 +72,17 @@ pub fn parallel_map<T: Sync, S: Send, R: Send>(
             message: panic_message(payload.as_ref()),
         })
     };
+    let run = &run;
     if threads == 1 {
         let state = prepare();
-        return items
-            .iter()
-            .enumerate()
-            .map(|(i, item)| run(&state, i, item))
-            .collect();
+        return serial_ops(move || {
+            items
+                .iter()
+                .enumerate()
+                .map(|(i, item)| run(&state, i, item))
+                .collect()
+        });
     }
-    let run = &run;
     let mut slots: Vec<Option<Result<R, WorkerPanicked>>> =
         std::iter::repeat_with(|| None).take(items.len()).collect();
     std::thread::scope(|scope| {
@@ -81,13 +90,15 @@ pub fn parallel_map<T: Sync, S: Send, R: Send>(
             .map(|worker| {
                 let state = prepare();
                 scope.spawn(move || {
-                    items
-                        .iter()
-                        .enumerate()
-                        .skip(worker)
-                        .step_by(threads)
-                        .map(|(i, item)| (i, run(&state, i, item)))
-                        .collect::<Vec<_>>()
+                    serial_ops(move || {
+                        items
+                            .iter()
+                            .enumerate()
+                            .skip(worker)
+                            .step_by(threads)
+                            .map(|(i, item)| (i, run(&state, i, item)))
+                            .collect::<Vec<_>>()
+                    })
                 })
             })
             .collect();
@@ -113,6 +124,21 @@ pub fn parallel_map<T: Sync, S: Send, R: Send>(
             })
         })
         .collect()
+}
+
+/// Runs `work` in a rayon pool of one thread, so that the parallel loops of the tensor ops
+/// under it run serially. The pool lives for this call only (its thread ends with it); a
+/// thread costs microseconds against an item's milliseconds. If the system refuses the
+/// thread, `work` runs here as it is, which changes its speed, not its result.
+fn serial_ops<R: Send>(work: impl FnOnce() -> R + Send) -> R {
+    match rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .thread_name(|_| "bevworld-item".into())
+        .build()
+    {
+        Ok(pool) => pool.install(work),
+        Err(_) => work(),
+    }
 }
 
 /// The gradients of every item summed in item order (floating-point addition is not

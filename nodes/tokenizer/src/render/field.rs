@@ -42,6 +42,24 @@ impl FieldShape {
         z * y * x
     }
 
+    /// `row` as a sum of one term per axis, `row(ix, iy, iz) = x[ix] + y[iy] + z[iz]`:
+    /// expanding the cell index gives
+    /// `(iy / r) · w_c · Z · r² + (ix / r) · Z · r² + iz · r² + (iy mod r) · r + ix mod r`.
+    /// Returned as `[x, y, z]`, indexed by voxel along that axis.
+    pub fn row_terms(&self) -> [Vec<i64>; 3] {
+        let r = self.split as i64;
+        let z_block = self.height as i64 * r * r;
+        let [depth, height, width] = self.voxels();
+        let x = (0..width as i64)
+            .map(|ix| (ix / r) * z_block + ix % r)
+            .collect();
+        let y = (0..height as i64)
+            .map(|iy| (iy / r) * self.cells_x as i64 * z_block + (iy % r) * r)
+            .collect();
+        let z = (0..depth as i64).map(|iz| iz * r * r).collect();
+        [x, y, z]
+    }
+
     /// The table row of voxel `(ix, iy, iz)`.
     pub fn row(&self, ix: usize, iy: usize, iz: usize) -> usize {
         let r = self.split;

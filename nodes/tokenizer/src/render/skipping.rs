@@ -16,10 +16,11 @@
 
 use burn::prelude::*;
 use burn::tensor::Bool;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::render::batched::{RenderedRays, VoxelScene, host_vec};
-use crate::render::rays::Rays;
+use crate::render::rays::{Rays, VoxelPlacement};
 use crate::render::{log_transmittance_after, render_weights, sample_trilinear};
 
 /// The logit padding samples get: α = σ(−1e4) = 0 and log(1 − α) = 0, exactly, in f32.
@@ -203,6 +204,74 @@ impl OccupancyGrid {
     }
 }
 
+/// Rays per parallel task when listing kept samples.
+const RAYS_PER_TASK: usize = 512;
+
+/// The kept samples of every ray, flat: ray `r`'s are `start[r]..start[r + 1]`, in order
+/// along the ray. One allocation for all rays (not one per ray), filled in parallel over
+/// chunks of rays; the content does not depend on the split.
+struct KeptSamples {
+    start: Vec<usize>,
+    positions: Vec<[f32; 3]>,
+    depths: Vec<f32>,
+}
+
+impl KeptSamples {
+    fn of(grid: &OccupancyGrid, rays: &Rays, depths: &[f32], placement: &VoxelPlacement) -> Self {
+        let parts: Vec<KeptSamples> = rays
+            .origins
+            .par_chunks(RAYS_PER_TASK)
+            .zip(rays.directions.par_chunks(RAYS_PER_TASK))
+            .map(|(origins, directions)| {
+                let mut part = KeptSamples {
+                    start: Vec::with_capacity(origins.len() + 1),
+                    positions: Vec::new(),
+                    depths: Vec::new(),
+                };
+                part.start.push(0);
+                for (o, d) in origins.iter().zip(directions) {
+                    for &t in depths {
+                        let p =
+                            placement.to_voxel(std::array::from_fn(|axis| o[axis] + t * d[axis]));
+                        if grid.keeps(p) {
+                            part.positions.push(p);
+                            part.depths.push(t);
+                        }
+                    }
+                    part.start.push(part.positions.len());
+                }
+                part
+            })
+            .collect();
+        let total = parts.iter().map(|part| part.positions.len()).sum();
+        let mut kept = Self {
+            start: Vec::with_capacity(rays.len() + 1),
+            positions: Vec::with_capacity(total),
+            depths: Vec::with_capacity(total),
+        };
+        kept.start.push(0);
+        for part in parts {
+            let offset = kept.positions.len();
+            kept.start
+                .extend(part.start.iter().skip(1).map(|&end| offset + end));
+            kept.positions.extend(part.positions);
+            kept.depths.extend(part.depths);
+        }
+        kept
+    }
+
+    fn count(&self, ray: usize) -> usize {
+        self.start[ray + 1] - self.start[ray]
+    }
+
+    /// Up to `len` kept samples of `ray` from its `from`-th on.
+    fn segment(&self, ray: usize, from: usize, len: usize) -> (&[[f32; 3]], &[f32]) {
+        let begin = (self.start[ray] + from).min(self.start[ray + 1]);
+        let end = (begin + len).min(self.start[ray + 1]);
+        (&self.positions[begin..end], &self.depths[begin..end])
+    }
+}
+
 impl VoxelScene<'_> {
     /// Renders `rays`, evaluating only kept samples and stopping opaque rays early.
     pub fn render_skipping(
@@ -221,19 +290,7 @@ impl VoxelScene<'_> {
         let device = voxels.device();
         let channels = voxels.shape.channels;
         let r_count = rays.len();
-        // Per ray: the kept samples' positions (voxel units) and depths, in order along the ray.
-        let mut kept: Vec<Vec<([f32; 3], f32)>> = Vec::with_capacity(r_count);
-        for (o, d) in rays.origins.iter().zip(&rays.directions) {
-            let mut samples = Vec::new();
-            for &t in depths.iter() {
-                let p = placement.to_voxel(std::array::from_fn(|axis| o[axis] + t * d[axis]));
-                if grid.keeps(p) {
-                    samples.push((p, t));
-                }
-            }
-            kept.push(samples);
-        }
-
+        let kept = KeptSamples::of(grid, rays, depths, placement);
         let mut out = RenderedRays {
             features: vec![0.0; r_count * channels],
             channels,
@@ -250,7 +307,7 @@ impl VoxelScene<'_> {
             f32::NEG_INFINITY
         };
         let segment = options.segment.max(1);
-        let mut active: Vec<usize> = (0..r_count).filter(|&r| !kept[r].is_empty()).collect();
+        let mut active: Vec<usize> = (0..r_count).filter(|&r| kept.count(r) > 0).collect();
         while !active.is_empty() {
             for batch in active.chunks(chunk.max(1)) {
                 let a = batch.len();
@@ -259,22 +316,15 @@ impl VoxelScene<'_> {
                 let mut padding = Vec::with_capacity(a * segment);
                 let mut offsets = Vec::with_capacity(a);
                 for &r in batch {
-                    let next = &kept[r][cursor[r]..(cursor[r] + segment).min(kept[r].len())];
-                    for i in 0..segment {
-                        match next.get(i) {
-                            Some((p, t)) => {
-                                positions.push(*p);
-                                sample_depths.push(*t);
-                                padding.push(false);
-                            }
-                            None => {
-                                positions.push([-1e3, -1e3, -1e3]);
-                                sample_depths.push(0.0);
-                                padding.push(true);
-                            }
-                        }
-                    }
-                    out.samples_evaluated += next.len() as u64;
+                    let (next_positions, next_depths) = kept.segment(r, cursor[r], segment);
+                    let real = next_positions.len();
+                    positions.extend_from_slice(next_positions);
+                    sample_depths.extend_from_slice(next_depths);
+                    padding.extend(std::iter::repeat_n(false, real));
+                    positions.extend(std::iter::repeat_n([-1e3f32; 3], segment - real));
+                    sample_depths.extend(std::iter::repeat_n(0.0f32, segment - real));
+                    padding.extend(std::iter::repeat_n(true, segment - real));
+                    out.samples_evaluated += real as u64;
                     offsets.push(log_t[r].exp());
                 }
                 let features = sample_trilinear(voxels, &positions).reshape([a, segment, channels]);
@@ -309,7 +359,7 @@ impl VoxelScene<'_> {
                     cursor[r] += segment;
                 }
             }
-            active.retain(|&r| cursor[r] < kept[r].len() && log_t[r] >= stop);
+            active.retain(|&r| cursor[r] < kept.count(r) && log_t[r] >= stop);
         }
         let escape_depth = model.escape_depth();
         for ((opacity, depth), lt) in out.opacity.iter_mut().zip(&mut out.depth).zip(&log_t) {

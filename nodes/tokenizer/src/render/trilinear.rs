@@ -13,42 +13,79 @@
 //! add them up (at the tiny size, 4 M values each, every step).
 
 use burn::prelude::*;
+use rayon::prelude::*;
 
 use crate::render::field::{FieldShape, VoxelField};
 
+/// Points per parallel task when computing corners: large enough that a task's cost dwarfs
+/// rayon's hand-off, small enough that both cores get several.
+const POINTS_PER_TASK: usize = 16 * 1024;
+
 /// The 8 corner rows and weights of each point, corner-major: entry `k · N + n` is corner `k`
 /// of point `n`. A corner outside the grid gets row 0 and weight 0.
+///
+/// Each corner's slice is written by its own tasks, over chunks of points, in parallel; a
+/// point's values do not depend on how the work is split. Rows are sums of per-axis terms
+/// (`FieldShape::row_terms`), so the loop has no integer division.
 pub fn corners(shape: &FieldShape, points: &[[f32; 3]]) -> (Vec<i64>, Vec<f32>) {
     let n = points.len();
-    let [depth, height, width] = shape.voxels();
     let mut rows = vec![0i64; 8 * n];
     let mut weights = vec![0f32; 8 * n];
-    for (i, p) in points.iter().enumerate() {
-        let base = [p[0].floor(), p[1].floor(), p[2].floor()];
-        let fraction = [p[0] - base[0], p[1] - base[1], p[2] - base[2]];
-        for corner in 0..8 {
-            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
-            let mut weight = 1.0f32;
-            let mut index = [0usize; 3];
-            let mut inside = true;
-            for axis in 0..3 {
-                let c = base[axis] + d[axis] as f32;
-                let size = [width, height, depth][axis] as f32;
-                inside &= c >= 0.0 && c < size;
-                weight *= if d[axis] == 1 {
-                    fraction[axis]
-                } else {
-                    1.0 - fraction[axis]
-                };
-                index[axis] = c.max(0.0) as usize;
-            }
-            if inside && weight != 0.0 {
-                rows[corner * n + i] = shape.row(index[0], index[1], index[2]) as i64;
-                weights[corner * n + i] = weight;
-            }
-        }
+    if n == 0 {
+        return (rows, weights);
     }
+    let [depth, height, width] = shape.voxels();
+    let sizes = [width as f32, height as f32, depth as f32];
+    let terms = shape.row_terms();
+    rows.par_chunks_mut(n)
+        .zip(weights.par_chunks_mut(n))
+        .enumerate()
+        .for_each(|(corner, (rows, weights))| {
+            let offset = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+            rows.par_chunks_mut(POINTS_PER_TASK)
+                .zip(weights.par_chunks_mut(POINTS_PER_TASK))
+                .zip(points.par_chunks(POINTS_PER_TASK))
+                .for_each(|((rows, weights), points)| {
+                    for ((row, weight), p) in rows.iter_mut().zip(weights.iter_mut()).zip(points) {
+                        let mut w = 1.0f32;
+                        let mut r = 0i64;
+                        let mut inside = true;
+                        for axis in 0..3 {
+                            let base = floor(p[axis]);
+                            let fraction = p[axis] - base;
+                            let c = base + offset[axis] as f32;
+                            inside &= c >= 0.0 && c < sizes[axis] && !p[axis].is_nan();
+                            w *= if offset[axis] == 1 {
+                                fraction
+                            } else {
+                                1.0 - fraction
+                            };
+                            if inside {
+                                r += terms[axis][c as usize];
+                            }
+                        }
+                        if inside && w != 0.0 {
+                            *row = r;
+                            *weight = w;
+                        }
+                    }
+                });
+        });
     (rows, weights)
+}
+
+/// `x.floor()` for `|x| < 2³¹`, by truncation and a correction: `f32::floor` is a libm call
+/// on x86-64 without SSE4.1, which keeps the corner loop from vectorising. Beyond ±2³¹ the
+/// conversion saturates, and such a point is outside the grid either way; NaN gives 0 and is
+/// refused by the caller.
+#[inline(always)]
+fn floor(x: f32) -> f32 {
+    let truncated = x as i32 as f32;
+    if truncated > x {
+        truncated - 1.0
+    } else {
+        truncated
+    }
 }
 
 /// Samples `field` at `points`, (x, y, z) in voxel units. Returns `[N, C_v]`.
