@@ -86,7 +86,7 @@ fn main() {
     let latent = encoder.2.clone();
     let lift = time(runs, || {
         let voxels = model.voxels(latent.clone());
-        std::hint::black_box(read(voxels.table.clone().sum().reshape([1])));
+        std::hint::black_box(read(voxels.table().clone().sum().reshape([1])));
         voxels
     });
     let voxels = lift.2.clone();

@@ -66,7 +66,7 @@ fn main() {
         let _: f32 = latent.clone().sum().into_scalar();
         lap(&mut totals, 0);
         let field = model.voxels(latent);
-        let _: f32 = field.table.clone().sum().into_scalar();
+        let _: f32 = field.table().clone().sum().into_scalar();
         lap(&mut totals, 1);
         let depth_row =
             Tensor::<2>::from_data(TensorData::new(depths.clone(), [1, depths.len()]), &device);

@@ -11,8 +11,9 @@
 //! other devices, burn's own `gelu`, with its backward pass, runs as before.
 
 use burn::prelude::*;
-use burn::tensor::DType;
 use rayon::prelude::*;
+
+use crate::host::inference_values;
 
 /// Elements per parallel task.
 const ELEMENTS_PER_TASK: usize = 32 * 1024;
@@ -20,17 +21,11 @@ const ELEMENTS_PER_TASK: usize = 32 * 1024;
 /// GELU of every element: ours on CPU inference tensors, burn's everywhere else.
 // [...] -> [...]
 pub fn gelu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
-    let device = x.device();
-    if x.is_autodiff() || x.dtype() != DType::F32 || device != Device::flex() {
+    let Some(mut values) = inference_values(&x) else {
         return burn::tensor::activation::gelu(x);
-    }
-    let shape = x.shape();
-    let mut values = match x.clone().into_data().try_into_vec::<f32>() {
-        Ok(values) => values,
-        Err(_) => return burn::tensor::activation::gelu(x),
     };
     gelu_in_place(&mut values);
-    Tensor::from_data(TensorData::new(values, shape), &device)
+    Tensor::from_data(TensorData::new(values, x.shape()), &x.device())
 }
 
 /// `gelu_scalar` of every value, in parallel over chunks.

@@ -64,7 +64,7 @@ fn run(
     };
     let encoded = model.encode(input);
     let latent = values(encoded.latent.clone());
-    let voxels = values(model.voxels(encoded.latent).table);
+    let voxels = values(model.voxels(encoded.latent).table().clone());
     (latent, voxels)
 }
 

@@ -41,7 +41,7 @@ fn tiny_tokenizer_runs_end_to_end() {
     let voxels = model.voxels(encoded.latent);
     let [cv, z, y, x] = config.voxel_shape();
     assert_eq!(voxels.shape.voxels(), [z, y, x]);
-    assert_eq!(voxels.table.dims(), [z * y * x, cv]);
+    assert_eq!(voxels.table().dims(), [z * y * x, cv]);
 
     // A handful of rays from near the ego origin, in arbitrary directions.
     let rays = Rays {

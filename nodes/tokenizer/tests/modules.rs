@@ -71,7 +71,7 @@ fn cell_blocks_land_at_their_voxels() {
         .reshape([1, rows, columns, per_cell]);
     let field = VoxelField::from_head(head, c, z, r);
     assert_eq!(field.shape.voxels(), [z, rows * r, columns * r]);
-    let table = values(field.table.clone());
+    let table = values(field.table().clone());
     let grid = field.to_grid();
     assert_eq!(grid.dims(), [1, c, z, rows * r, columns * r]);
     let v = values(grid);

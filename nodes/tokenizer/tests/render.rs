@@ -328,3 +328,29 @@ fn nan_infinite_and_huge_points_sample_zero() {
         );
     }
 }
+
+/// CPU inference samples with one host loop, autodiff with burn's gather and sum: the two
+/// must agree, point for point, inside, on the border and outside the grid.
+#[test]
+fn the_host_sampler_agrees_with_the_autodiff_path() {
+    let points: Vec<[f32; 3]> = (0..5_000)
+        .map(|i| {
+            let t = i as f32;
+            [
+                (t * 0.37).sin() * 3.5 + 2.0,
+                (t * 0.23).cos() * 2.8 + 1.5,
+                (t * 0.11).sin() * 2.2 + 1.0,
+            ]
+        })
+        .collect();
+    let host = sample(&points);
+    let autodiff = Device::flex().autodiff();
+    let field = VoxelField::from_grid(grid(&autodiff));
+    assert!(field.host_table().is_none(), "autodiff keeps burn's ops");
+    let ops = values(sample_trilinear(&field, &points));
+    assert_eq!(host.len(), ops.len());
+    for (i, (a, b)) in host.iter().zip(&ops).enumerate() {
+        assert!((a - b).abs() <= 1e-6, "value {i}: host {a}, ops {b}");
+    }
+    assert!(VoxelField::from_grid(grid(&device())).host_table().is_some());
+}

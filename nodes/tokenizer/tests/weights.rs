@@ -32,8 +32,8 @@ fn weights_round_trip_and_mismatches_are_named() {
         &device,
     );
     assert_eq!(
-        values(model.voxels(latent.clone()).table),
-        values(loaded.voxels(latent).table)
+        values(model.voxels(latent.clone()).table().clone()),
+        values(loaded.voxels(latent).table().clone())
     );
 
     let missing = dir.path().join("absent.bpk");

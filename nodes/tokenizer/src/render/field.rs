@@ -11,6 +11,9 @@
 //! into a table on every forward pass and every gradient copied back, and at the paper's size
 //! the grid has 150 M values. `to_grid` gives the grid for inspection and tests.
 
+use std::sync::{Arc, OnceLock};
+
+use bevworld_blocks::host::inference_values;
 use burn::prelude::*;
 
 /// The layout of a voxel field.
@@ -68,14 +71,48 @@ impl FieldShape {
     }
 }
 
-/// A voxel field: `table` is `[rows, C_v]`, laid out as `shape` says.
-#[derive(Clone, Debug)]
+/// A voxel field: `table` is `[rows, C_v]`, laid out as `shape` says. The table is fixed at
+/// construction (read it with `table()`), so that its host copy, made once for CPU inference,
+/// can never disagree with it.
+#[derive(Clone)]
 pub struct VoxelField {
-    pub table: Tensor<2>,
+    table: Tensor<2>,
     pub shape: FieldShape,
+    /// The table's values on the host, read on first use by CPU inference and shared by the
+    /// field's clones; `None` inside when the table is under autodiff or on another device.
+    host: Arc<OnceLock<Option<Vec<f32>>>>,
+}
+
+impl std::fmt::Debug for VoxelField {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VoxelField")
+            .field("table", &self.table.dims())
+            .field("shape", &self.shape)
+            .finish_non_exhaustive()
+    }
 }
 
 impl VoxelField {
+    fn new(table: Tensor<2>, shape: FieldShape) -> Self {
+        Self {
+            table,
+            shape,
+            host: Arc::default(),
+        }
+    }
+
+    /// The table, `[rows, C_v]`.
+    pub fn table(&self) -> &Tensor<2> {
+        &self.table
+    }
+
+    /// The table's values, row-major, when sampling may run on the host (CPU inference):
+    /// copied from the device once per field.
+    pub fn host_table(&self) -> Option<&[f32]> {
+        self.host
+            .get_or_init(|| inference_values(&self.table))
+            .as_deref()
+    }
     /// The field of the head's output `[1, h_c, w_c, Z · r · r · C_v]`, channels ordered
     /// (height, patch row, patch column, feature). No copy is made.
     pub fn from_head(head: Tensor<4>, channels: usize, height: usize, split: usize) -> Self {
@@ -88,10 +125,7 @@ impl VoxelField {
             split,
         };
         debug_assert_eq!(block, height * split * split * channels);
-        Self {
-            table: head.reshape([shape.rows(), channels]),
-            shape,
-        }
+        Self::new(head.reshape([shape.rows(), channels]), shape)
     }
 
     /// A field of a `[1, C_v, Z, Y, X]` grid, one voxel column per cell (`split` 1): for
@@ -105,13 +139,12 @@ impl VoxelField {
             cells_x: x,
             split: 1,
         };
-        Self {
-            table: grid
-                .reshape([channels, height, y, x])
+        Self::new(
+            grid.reshape([channels, height, y, x])
                 .permute([2, 3, 1, 0])
                 .reshape([shape.rows(), channels]),
             shape,
-        }
+        )
     }
 
     /// The field as a `[1, C_v, Z, Y, X]` grid.
@@ -131,9 +164,6 @@ impl VoxelField {
 
     /// The same field, detached from any autodiff graph.
     pub fn detach(&self) -> Self {
-        Self {
-            table: self.table.clone().detach(),
-            shape: self.shape,
-        }
+        Self::new(self.table.clone().detach(), self.shape)
     }
 }

@@ -133,7 +133,7 @@ impl OccupancyGrid {
         for start in (0..rows).step_by(chunk) {
             let count = chunk.min(rows - start);
             let slab = field
-                .table
+                .table()
                 .clone()
                 .narrow(0, start, count)
                 .reshape([1, count, channels]);

@@ -89,6 +89,10 @@ fn floor(x: f32) -> f32 {
 }
 
 /// Samples `field` at `points`, (x, y, z) in voxel units. Returns `[N, C_v]`.
+///
+/// For CPU inference the gather, weighting and sum are one host loop (`sample_on_host`),
+/// which never builds the `[8 · N, C_v]` gathered rows; under autodiff or on another device
+/// they are burn ops, so that gradients flow to the table.
 pub fn sample_trilinear(field: &VoxelField, points: &[[f32; 3]]) -> Tensor<2> {
     let n = points.len();
     let channels = field.shape.channels;
@@ -96,15 +100,70 @@ pub fn sample_trilinear(field: &VoxelField, points: &[[f32; 3]]) -> Tensor<2> {
     if n == 0 {
         return Tensor::zeros([0, channels], &device);
     }
+    if let Some(table) = field.host_table() {
+        let values = sample_on_host(&field.shape, table, points);
+        return Tensor::from_data(TensorData::new(values, [n, channels]), &device);
+    }
     let (rows, weights) = corners(&field.shape, points);
     let rows = Tensor::<1, Int>::from_data(TensorData::new(rows, [8 * n]), &device);
     let weights = Tensor::<3>::from_data(TensorData::new(weights, [8, n, 1]), &device);
     (field
-        .table
+        .table()
         .clone()
         .select(0, rows)
         .reshape([8, n, channels])
         * weights)
         .sum_dim(0)
         .reshape([n, channels])
+}
+
+/// Trilinear samples of a row-major `[rows, C_v]` table, point-major `[N, C_v]`: each point's
+/// 8 corners, in the order and with the weights `corners` gives them, weighted and summed in
+/// one pass, in parallel over chunks of points. Corners outside the grid are skipped (they
+/// weigh 0).
+pub fn sample_on_host(shape: &FieldShape, table: &[f32], points: &[[f32; 3]]) -> Vec<f32> {
+    let channels = shape.channels;
+    let mut out = vec![0f32; points.len() * channels];
+    if channels == 0 {
+        return out;
+    }
+    let [depth, height, width] = shape.voxels();
+    let sizes = [width as f32, height as f32, depth as f32];
+    let terms = shape.row_terms();
+    out.par_chunks_mut(POINTS_PER_TASK * channels)
+        .zip(points.par_chunks(POINTS_PER_TASK))
+        .for_each(|(out, points)| {
+            for (sample, p) in out.chunks_exact_mut(channels).zip(points) {
+                // Per axis: the two neighbours' row terms and weights, or none if outside.
+                let mut axes = [[(0i64, 0f32); 2]; 3];
+                let mut valid = [[false; 2]; 3];
+                for axis in 0..3 {
+                    let base = floor(p[axis]);
+                    let fraction = p[axis] - base;
+                    for (side, weight) in [1.0 - fraction, fraction].into_iter().enumerate() {
+                        let c = base + side as f32;
+                        if c >= 0.0 && c < sizes[axis] && !p[axis].is_nan() {
+                            axes[axis][side] = (terms[axis][c as usize], weight);
+                            valid[axis][side] = true;
+                        }
+                    }
+                }
+                for corner in 0..8 {
+                    let [sx, sy, sz] = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+                    if !(valid[0][sx] && valid[1][sy] && valid[2][sz]) {
+                        continue;
+                    }
+                    let weight = axes[0][sx].1 * axes[1][sy].1 * axes[2][sz].1;
+                    if weight == 0.0 {
+                        continue;
+                    }
+                    let row = (axes[0][sx].0 + axes[1][sy].0 + axes[2][sz].0) as usize;
+                    let values = &table[row * channels..(row + 1) * channels];
+                    for (acc, value) in sample.iter_mut().zip(values) {
+                        *acc += value * weight;
+                    }
+                }
+            }
+        });
+    out
 }
