@@ -489,3 +489,29 @@ fn a_killed_export_resumes_to_a_complete_set_without_duplicates() {
         serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
     assert_eq!(index["frames"].as_array().unwrap().len(), 48);
 }
+
+/// `--threads` sizes the inference pool: a count is taken with any command, and 0 or a
+/// non-number is refused at parse time, naming the flag.
+#[test]
+fn threads_takes_a_positive_count_and_refuses_anything_else() {
+    let output = bevworld(&["--threads", "1", "kinds"]);
+    assert!(output.status.success(), "{}", text(&output));
+    assert!(text(&output).contains("encode"), "{}", text(&output));
+    let output = bevworld(&["kinds", "--threads", "2"]);
+    assert!(
+        output.status.success(),
+        "after the command too: {}",
+        text(&output)
+    );
+    for bad in ["0", "many", "-1"] {
+        let flag = format!("--threads={bad}");
+        let output = bevworld(&[&flag, "kinds"]);
+        assert_eq!(
+            output.status.code(),
+            Some(2),
+            "--threads {bad}: {}",
+            text(&output)
+        );
+        assert!(text(&output).contains("--threads"), "{}", text(&output));
+    }
+}

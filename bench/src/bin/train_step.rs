@@ -1,6 +1,7 @@
 //! Where a tokenizer training step's time goes, and what the worker threads give.
 //!
-//! - Phases of one frame's step, on one thread (flex is synchronous, so the wall clock between
+//! - Phases of one frame's step, on the calling thread with its tensor ops spread over rayon's
+//!   global pool (intra-op parallelism; flex is synchronous, so the wall clock between
 //!   phases is the phase's time): encode, lift, camera render, RGB upsampling, LiDAR render,
 //!   backward, AdamW.
 //! - Whole `Trainer` steps of `frames_per_step` frames, on 1 thread and on every core.
@@ -43,7 +44,7 @@ fn main() {
     let inputs = FrameInputs::new(&model_config);
     let frames = load_frames(&set.dir, &inputs, 4, |_, _| {}).expect("frames");
 
-    // Phases of one frame, one thread.
+    // Phases of one frame, its ops over every core.
     let device = Device::flex().autodiff();
     let mut model = model_config.init_seeded(config.seed, &device);
     let mut optimizer = config.optimizer.adamw();
@@ -186,7 +187,7 @@ fn main() {
         ),
         &format!("{phase_table}\n{step_table}"),
         &format!(
-            "Phases: one frame of `{}` ({} camera rays, {} LiDAR rays, {} samples each), mean of {steps} steps after {warmup} of warm-up, one thread. Steps: `Trainer::train_step` with the config's {} frames per step.\n\n![phases](train_step.svg)\n",
+            "Phases: one frame of `{}` ({} camera rays, {} LiDAR rays, {} samples each), mean of {steps} steps after {warmup} of warm-up, the frame's tensor ops spread over every core (intra-op). Steps: `Trainer::train_step` with the config's {} frames per step, each frame's ops on one thread (per-frame parallelism, as training runs). Two frames one after the other with intra-op parallelism would take twice the one-frame total; compare it with the steps on every core.\n\n![phases](train_step.svg)\n",
             model_config.name,
             frames[0].rays.camera.len(),
             config.rays.lidar_rays,
@@ -202,7 +203,7 @@ fn main() {
         .collect();
     if let Err(error) = bevworld_plot::bars_svg(
         &results_dir().join("train_step.svg"),
-        "Tokenizer training step: one frame's phases (one thread)",
+        "Tokenizer training step: one frame's phases (ops over every core)",
         "ms",
         &bars,
         false,

@@ -13,6 +13,7 @@ pub mod adaln;
 pub mod attention;
 pub mod cache;
 pub mod embedding;
+pub mod fast_math;
 pub mod host;
 pub mod init;
 pub mod mlp;

@@ -352,5 +352,40 @@ fn the_host_sampler_agrees_with_the_autodiff_path() {
     for (i, (a, b)) in host.iter().zip(&ops).enumerate() {
         assert!((a - b).abs() <= 1e-6, "value {i}: host {a}, ops {b}");
     }
-    assert!(VoxelField::from_grid(grid(&device())).host_table().is_some());
+    assert!(
+        VoxelField::from_grid(grid(&device()))
+            .host_table()
+            .is_some()
+    );
+}
+
+/// Render weights for CPU inference come from a host loop, under autodiff from burn ops: the
+/// two agree on logits from very transparent to very opaque, and on long rays.
+#[test]
+fn host_render_weights_agree_with_the_autodiff_path() {
+    let (rays, samples) = (300, 97);
+    let logits: Vec<f32> = (0..rays * samples)
+        .map(|i| ((i * 7919) % 2001) as f32 / 1000.0 * 30.0 - 30.0 + (i % samples) as f32 * 0.05)
+        .collect();
+    let on = |device: &Device| {
+        values(render_weights(Tensor::<2>::from_data(
+            TensorData::new(logits.clone(), [rays, samples]),
+            device,
+        )))
+    };
+    let host = on(&device());
+    let ops = on(&device().autodiff());
+    for (i, (a, b)) in host.iter().zip(&ops).enumerate() {
+        assert!(
+            (a - b).abs() <= 2e-6 * b.abs().max(1e-3),
+            "weight {i}: host {a}, ops {b}"
+        );
+    }
+    for ray in host.chunks(samples) {
+        let opacity: f32 = ray.iter().sum();
+        assert!(
+            opacity <= 1.0 + 1e-5 && ray.iter().all(|w| *w >= 0.0),
+            "opacity {opacity}"
+        );
+    }
 }

@@ -5,24 +5,70 @@
 //! transmittance goes to a large negative number and `exp` gives exactly 0, never NaN. The
 //! weights sum to `1 − T_N ≤ 1`, the ray's opacity; the rest of the ray is transparent.
 
+use bevworld_blocks::fast_math::{exp, log_sigmoid};
+use bevworld_blocks::host::inference_values;
 use burn::prelude::*;
-use burn::tensor::activation::log_sigmoid;
+use burn::tensor::activation;
+use rayon::prelude::*;
 
 /// Weights of each sample along each ray, from alpha logits `s`.
+///
+/// For CPU inference this is one host loop per ray (`render_weights_on_host`); under
+/// autodiff or on another device, burn ops with their backward passes.
 // [R, S] -> [R, S]
 pub fn render_weights(alpha_logits: Tensor<2>) -> Tensor<2> {
-    let log_alpha = log_sigmoid(alpha_logits.clone()); // [R, S]
-    let log_transparency = log_sigmoid(alpha_logits.neg()); // [R, S], log(1 - α)
+    if let Some(mut values) = inference_values(&alpha_logits) {
+        let [rays, samples] = alpha_logits.dims();
+        render_weights_on_host(&mut values, samples);
+        return Tensor::from_data(
+            TensorData::new(values, [rays, samples]),
+            &alpha_logits.device(),
+        );
+    }
+    let log_alpha = activation::log_sigmoid(alpha_logits.clone()); // [R, S]
+    let log_transparency = activation::log_sigmoid(alpha_logits.neg()); // [R, S], log(1 - α)
     // Exclusive cumulative sum: the inclusive one minus the sample's own term.
     let log_transmittance = log_transparency.clone().cumsum(1) - log_transparency; // [R, S]
     (log_alpha + log_transmittance).exp()
+}
+
+/// Rays per parallel task on the host.
+const RAYS_PER_TASK: usize = 256;
+
+/// `render_weights` in place over row-major `[R, S]` alpha logits, with the same arithmetic
+/// in the same order (inclusive running sum minus the sample's own term), so that it agrees
+/// with the tensor ops to a few ulp: per ray, the two log-sigmoids and the final `exp` are
+/// vectorised passes, and only the running sum is sequential.
+pub fn render_weights_on_host(logits: &mut [f32], samples: usize) {
+    if samples == 0 {
+        return;
+    }
+    logits
+        .par_chunks_mut(samples * RAYS_PER_TASK)
+        .for_each(|rays| {
+            let mut log_transparency = vec![0f32; samples];
+            for ray in rays.chunks_exact_mut(samples) {
+                for (s, t) in ray.iter_mut().zip(&mut log_transparency) {
+                    *t = log_sigmoid(-*s);
+                    *s = log_sigmoid(*s);
+                }
+                let mut running = 0f32;
+                for (s, t) in ray.iter_mut().zip(&log_transparency) {
+                    running += t;
+                    *s += running - t;
+                }
+                for s in ray.iter_mut() {
+                    *s = exp(*s);
+                }
+            }
+        });
 }
 
 /// Log transmittance after each sample (inclusive): `log T_{i+1}`. A ray may stop once it
 /// falls below `ln(1e-4)`.
 // [R, S] -> [R, S]
 pub fn log_transmittance_after(alpha_logits: Tensor<2>) -> Tensor<2> {
-    log_sigmoid(alpha_logits.neg()).cumsum(1)
+    activation::log_sigmoid(alpha_logits.neg()).cumsum(1)
 }
 
 /// Expected depth `Σ w_i t_i` of each ray.
