@@ -102,34 +102,35 @@ fn main() {
         let lidar = scene.render_dense(&rays.lidar);
         (rgb_of(&camera), camera, lidar)
     });
-    let options = SkipOptions::default();
-    let skipping = time(3, || {
-        let grid = OccupancyGrid::build(&scene, &options);
-        let camera = scene.render_skipping(&grid, &rays.camera, &options);
-        let lidar = scene.render_skipping(&grid, &rays.lidar, &options);
-        (rgb_of(&camera), camera, lidar, grid.occupied_fraction)
-    });
+    // Skipping at the default segment and at longer ones: a longer segment means fewer
+    // passes through the model (less overhead per sample) but later early stops.
+    let defaults = SkipOptions::default();
+    let skip_runs: Vec<_> = [defaults.segment, 24, 48]
+        .into_iter()
+        .map(|segment| {
+            let options = SkipOptions {
+                segment,
+                ..defaults
+            };
+            let run = time(3, || {
+                let grid = OccupancyGrid::build(&scene, &options);
+                let camera = scene.render_skipping(&grid, &rays.camera, &options);
+                let lidar = scene.render_skipping(&grid, &rays.lidar, &options);
+                (rgb_of(&camera), camera, lidar, grid.occupied_fraction)
+            });
+            (options, run)
+        })
+        .collect();
     let matmul = bevworld_device::matmul_gflops(&device, 512, 5).unwrap_or(f64::NAN);
 
     let (dense_rgb, dense_camera, dense_lidar) = &dense.2;
-    let (skip_rgb, skip_camera, skip_lidar, occupied) = &skipping.2;
-    let depth_mae = dense_lidar
-        .depth
-        .iter()
-        .zip(&skip_lidar.depth)
-        .map(|(a, b)| f64::from((a - b).abs()))
-        .sum::<f64>()
-        / lidar_rays.max(1) as f64;
-    let colour_psnr = psnr(dense_rgb, skip_rgb);
-    let evaluated = skip_camera.samples_evaluated + skip_lidar.samples_evaluated;
     let dense_samples = dense_camera.samples_dense + dense_lidar.samples_dense;
-    let fraction = evaluated as f64 / dense_samples as f64;
-
+    let occupied = skip_runs.first().map_or(f64::NAN, |(_, run)| run.2.3);
+    let options = defaults;
     let gflops = |flop: f64, ms: f64| flop / (ms * 1e-3) / 1e9;
     let encoder_flop = flops.encoder();
     let lift_flop = flops.lift;
     let dense_flop = flops.render(dense_samples, rays.cameras);
-    let skip_flop = flops.render(evaluated, rays.cameras);
     let row = |stage: String, t: (f64, f64), flop: f64, extra: String| {
         let rate = gflops(flop, t.0);
         vec![
@@ -169,20 +170,44 @@ fn main() {
             dense_flop,
             format!("{:.3} M rays/s", total_rays as f64 / (dense.0 * 1e-3) / 1e6),
         ),
-        row(
+    ];
+    let mut rows = rows;
+    let mut skip_json = Vec::new();
+    for (options, skipping) in &skip_runs {
+        let (skip_rgb, skip_camera, skip_lidar, _) = &skipping.2;
+        let depth_mae = dense_lidar
+            .depth
+            .iter()
+            .zip(&skip_lidar.depth)
+            .map(|(a, b)| f64::from((a - b).abs()))
+            .sum::<f64>()
+            / lidar_rays.max(1) as f64;
+        let colour_psnr = psnr(dense_rgb, skip_rgb);
+        let evaluated = skip_camera.samples_evaluated + skip_lidar.samples_evaluated;
+        let fraction = evaluated as f64 / dense_samples as f64;
+        skip_json.push(serde_json::json!({
+            "segment": options.segment,
+            "ms_p50": skipping.0,
+            "gflop": flops.render(evaluated, rays.cameras) / 1e9,
+            "sample_fraction": fraction,
+            "depth_mae_m": depth_mae,
+            "colour_psnr_db": colour_psnr,
+        }));
+        rows.push(row(
             format!(
-                "render, skipping (α ≤ {}, {}³ cells, stop at T < {})",
-                options.alpha_threshold, options.cell, options.stop_transmittance
+                "render, skipping (α ≤ {}, {}³ cells, stop at T < {}, segments of {})",
+                options.alpha_threshold, options.cell, options.stop_transmittance, options.segment
             ),
             (skipping.0, skipping.1),
-            skip_flop,
+            flops.render(evaluated, rays.cameras),
             format!(
-                "{:.3} M rays/s; {:.1}% of samples; depth MAE {depth_mae:.4} m; colour PSNR vs dense {colour_psnr:.1} dB",
+                "{:.3} M rays/s, {:.2}x dense; {:.1}% of samples; depth MAE {depth_mae:.4} m; colour PSNR vs dense {colour_psnr:.1} dB",
                 total_rays as f64 / (skipping.0 * 1e-3) / 1e6,
+                dense.0 / skipping.0,
                 100.0 * fraction
             ),
-        ),
-    ];
+        ));
+    }
     let table = markdown_table(
         &[
             "stage (tiny config)",
@@ -234,11 +259,7 @@ fn main() {
             "lift_gflop": lift_flop / 1e9,
             "render_dense_ms_p50": dense.0,
             "render_dense_gflop": dense_flop / 1e9,
-            "render_skipping_ms_p50": skipping.0,
-            "render_skipping_gflop": skip_flop / 1e9,
-            "skipping_sample_fraction": fraction,
-            "skipping_depth_mae_m": depth_mae,
-            "skipping_colour_psnr_db": colour_psnr,
+            "render_skipping": skip_json,
             "occupied_fraction": occupied,
             "rays": total_rays,
             "samples_per_ray": config.render.samples,

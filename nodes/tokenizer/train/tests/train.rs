@@ -27,23 +27,30 @@ fn configs() -> (TrainConfig, TokenizerConfig) {
         .expect("the shipped training config")
 }
 
+/// One synthetic scene of `seconds` with the tiny model's camera size, in a new temporary
+/// folder (kept alive by the returned guard).
+fn small_scene(seed: u64, seconds: f64) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("synth");
+    let config = SynthConfig {
+        seed,
+        scenes: 1,
+        seconds,
+        camera_width: 112,
+        camera_height: 64,
+        ..Default::default()
+    };
+    generate(&data, &config, |_, _| {}).expect("synthetic scene");
+    (dir, data)
+}
+
 /// Two keyframes of a 1-second synthetic scene with small cameras, prepared once per test
 /// binary (the folder lives as long as the process).
 fn frames() -> &'static Vec<TrainingFrame> {
     static FRAMES: OnceLock<(tempfile::TempDir, Vec<TrainingFrame>)> = OnceLock::new();
     &FRAMES
         .get_or_init(|| {
-            let dir = tempfile::tempdir().expect("tempdir");
-            let data = dir.path().join("synth");
-            let config = SynthConfig {
-                seed: 77,
-                scenes: 1,
-                seconds: 1.0,
-                camera_width: 112,
-                camera_height: 64,
-                ..Default::default()
-            };
-            generate(&data, &config, |_, _| {}).expect("synthetic scene");
+            let (dir, data) = small_scene(77, 1.0);
             let (_, model) = configs();
             let frames =
                 load_frames(&data, &FrameInputs::new(&model), 2, |_, _| {}).expect("frames");
@@ -537,6 +544,14 @@ fn steps_without_and_with(
     (without, with)
 }
 
+/// The RGB, LiDAR and distortion terms of two steps over the same rays are equal: adding a
+/// term leaves the others alone.
+fn assert_terms_unchanged(without: &StepReport, with: &StepReport) {
+    for term in [Term::Rgb, Term::Lidar, Term::Distortion] {
+        assert_eq!(with.term(term), without.term(term), "{term:?}");
+    }
+}
+
 /// The total of `with` is that of `without` plus the weighted term alone.
 fn assert_total_grows_by(without: &StepReport, with: &StepReport, weighted_term: f64) {
     let expected = without.loss + weighted_term;
@@ -577,18 +592,7 @@ fn the_termination_term_joins_the_loss_only_when_weighted() {
     // rays near the car, far from most returns, so it is well above ln 2.
     assert!(term > 1.0 && term < 13.82, "{term}");
     // The same rays: the other terms are unchanged.
-    assert_eq!(
-        (
-            with.term(Term::Rgb),
-            with.term(Term::Lidar),
-            with.term(Term::Distortion)
-        ),
-        (
-            without.term(Term::Rgb),
-            without.term(Term::Lidar),
-            without.term(Term::Distortion)
-        )
-    );
+    assert_terms_unchanged(&without, &with);
     assert_total_grows_by(&without, &with, 0.05 * term);
 }
 
@@ -597,18 +601,7 @@ fn the_squared_rgb_term_joins_the_loss_only_when_weighted() {
     let weight = 5.0;
     let (without, with) = steps_without_and_with(|c, w| c.loss.rgb_l2 = w, weight);
     // The same rays and the same L1 terms; the squared term is reported only when weighted.
-    assert_eq!(
-        (
-            with.term(Term::Rgb),
-            with.term(Term::Lidar),
-            with.term(Term::Distortion)
-        ),
-        (
-            without.term(Term::Rgb),
-            without.term(Term::Lidar),
-            without.term(Term::Distortion)
-        )
-    );
+    assert_terms_unchanged(&without, &with);
     assert_eq!(without.term(Term::RgbSquared), None);
     let mean_squared = with.term(Term::RgbSquared).expect("squared RGB term");
     // The step's total grows by the weighted term it reports.
@@ -749,17 +742,7 @@ fn lidar_draw_parses_as_the_config_spells_it() {
 
 #[test]
 fn with_escape_at_far_training_draws_only_returns_inside_the_voxel_box() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let data = dir.path().join("synth");
-    let synth = SynthConfig {
-        seed: 78,
-        scenes: 1,
-        seconds: 0.5,
-        camera_width: 112,
-        camera_height: 64,
-        ..Default::default()
-    };
-    generate(&data, &synth, |_, _| {}).expect("synthetic scene");
+    let (_dir, data) = small_scene(78, 0.5);
     let (_, tiny) = configs();
     // A far plane of 100 m reaches every return of the synthetic LiDAR, and some lie beyond
     // the voxel box's ±80 m.
