@@ -515,3 +515,41 @@ fn threads_takes_a_positive_count_and_refuses_anything_else() {
         assert!(text(&output).contains("--threads"), "{}", text(&output));
     }
 }
+
+/// `synth` refuses what it cannot generate before it writes anything, in the flags' words.
+#[test]
+fn synth_refuses_jpeg_quality_seed_wrap_and_agent_floods() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("data");
+    let out_arg = out.to_str().unwrap();
+    for (flags, expected) in [
+        (vec!["--jpeg", "0"], "jpeg quality: 0"),
+        (vec!["--jpeg", "101"], "jpeg quality: 101"),
+        (
+            vec!["--seed", "18446744073709551615", "--scenes", "2"],
+            "wrap round to 0",
+        ),
+        (vec!["--agents", "100000"], "agents: 100000"),
+    ] {
+        let mut args = vec!["synth", "--out", out_arg];
+        args.extend(flags.iter().copied());
+        let output = bevworld(&args);
+        assert_eq!(
+            output.status.code(),
+            Some(1),
+            "{flags:?}: {}",
+            text(&output)
+        );
+        assert!(
+            text(&output).contains(expected),
+            "{flags:?}: {}",
+            text(&output)
+        );
+        assert!(
+            text(&output).contains("--jpeg"),
+            "names the flags: {}",
+            text(&output)
+        );
+        assert!(!out.exists(), "{flags:?}: nothing written");
+    }
+}

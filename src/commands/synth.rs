@@ -34,10 +34,10 @@ pub struct SynthArgs {
     /// Probability that a LiDAR return is dropped.
     #[arg(long, default_value_t = 0.0)]
     pub ray_drop: f64,
-    /// Moving vehicles per scene.
+    /// Moving vehicles per scene (at most 200).
     #[arg(long, default_value_t = 14)]
     pub agents: usize,
-    /// Write JPEG at this quality instead of lossless PNG.
+    /// Write JPEG at this quality (1 to 100) instead of lossless PNG.
     #[arg(long)]
     pub jpeg: Option<u8>,
     /// Replace an existing dataset in OUT.
@@ -47,9 +47,6 @@ pub struct SynthArgs {
 
 pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     let (camera_width, camera_height) = parse_size(&args.camera_size).context("--camera-size")?;
-    if !(args.seconds > 0.0) || args.scenes == 0 {
-        bail!("--seconds must be > 0 and --scenes >= 1");
-    }
     if !(args.azimuth_step > 0.01 && args.azimuth_step <= 10.0) {
         bail!("--azimuth-step must be in (0.01, 10] degrees");
     }
@@ -81,6 +78,15 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
             }),
         ..Default::default()
     };
+    // The library refuses what it cannot generate; say it here in the flags' words, before
+    // anything is written.
+    let problems = config.problems();
+    if !problems.is_empty() {
+        bail!(
+            "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --jpeg)",
+            problems.join("; ")
+        );
+    }
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
         indicatif::ProgressStyle::with_template(

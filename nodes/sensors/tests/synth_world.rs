@@ -316,3 +316,72 @@ fn recorded_controls_replay_the_ego_poses() {
         "the ego should drive, travelled {travelled} m"
     );
 }
+
+/// A config that cannot be generated is refused before anything is written, naming each
+/// field: a seed range that would wrap round to 0, a JPEG quality outside 1..=100, too many
+/// agents, no scenes, and a non-finite length.
+#[test]
+fn a_config_that_cannot_be_generated_is_refused_naming_its_fields() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cases: Vec<(SynthConfig, &str)> = vec![
+        (
+            SynthConfig {
+                seed: u64::MAX,
+                scenes: 2,
+                ..tiny(0)
+            },
+            "seed: 18446744073709551615 with 2 scenes",
+        ),
+        (
+            SynthConfig {
+                image_encoding: bevworld_sensors::synth::ImageEncoding::Jpeg { quality: 0 },
+                ..tiny(0)
+            },
+            "jpeg quality: 0",
+        ),
+        (
+            SynthConfig {
+                image_encoding: bevworld_sensors::synth::ImageEncoding::Jpeg { quality: 101 },
+                ..tiny(0)
+            },
+            "jpeg quality: 101",
+        ),
+        (
+            SynthConfig {
+                agents: 100_000,
+                ..tiny(0)
+            },
+            "agents: 100000",
+        ),
+        (
+            SynthConfig {
+                scenes: 0,
+                ..tiny(0)
+            },
+            "scenes: 0",
+        ),
+        (
+            SynthConfig {
+                seconds: f64::NAN,
+                ..tiny(0)
+            },
+            "seconds: NaN",
+        ),
+    ];
+    for (config, expected) in cases {
+        let out = dir.path().join("refused");
+        let message = match generate(&out, &config, |_, _| {}) {
+            Ok(_) => panic!("{expected}: generated"),
+            Err(error) => error.to_string(),
+        };
+        assert!(message.contains(expected), "{message}");
+        assert!(!out.exists(), "{expected}: nothing is written");
+    }
+    // The last seed that does not wrap is accepted.
+    let edge = SynthConfig {
+        seed: u64::MAX - 1,
+        scenes: 2,
+        ..tiny(0)
+    };
+    assert!(edge.problems().is_empty(), "{:?}", edge.problems());
+}

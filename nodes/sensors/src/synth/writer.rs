@@ -63,6 +63,57 @@ impl Default for SynthConfig {
     }
 }
 
+/// The most moving vehicles a scene may hold: traffic is simulated pairwise, so thousands
+/// would run for minutes per frame, and a town block has no room for them.
+pub const MAX_AGENTS: usize = 200;
+
+impl SynthConfig {
+    /// What is wrong with this config, one line per field, each naming the field, its value
+    /// and what is accepted. Empty when it can be generated.
+    pub fn problems(&self) -> Vec<String> {
+        let mut problems = Vec::new();
+        if self.scenes == 0 {
+            problems.push("scenes: 0 (accepted: 1 or more)".to_string());
+        }
+        // Scene k uses seed `seed + k`: the last seed must not wrap round to 0.
+        let last_scene = self.scenes.saturating_sub(1) as u64;
+        if self.seed.checked_add(last_scene).is_none() {
+            problems.push(format!(
+                "seed: {} with {} scenes: scene seeds would pass {} and wrap round to 0 \
+                 (accepted: seed + scenes - 1 <= {})",
+                self.seed,
+                self.scenes,
+                u64::MAX,
+                u64::MAX
+            ));
+        }
+        if !(self.seconds.is_finite() && self.seconds > 0.0 && self.seconds <= 3600.0) {
+            problems.push(format!(
+                "seconds: {} (accepted: more than 0, at most 3600)",
+                self.seconds
+            ));
+        }
+        if self.camera_width == 0 || self.camera_height == 0 {
+            problems.push(format!(
+                "camera size: {}x{} (accepted: both at least 1)",
+                self.camera_width, self.camera_height
+            ));
+        }
+        if self.agents > MAX_AGENTS {
+            problems.push(format!(
+                "agents: {} (accepted: 0 to {MAX_AGENTS})",
+                self.agents
+            ));
+        }
+        if let ImageEncoding::Jpeg { quality } = self.image_encoding
+            && !(1..=100).contains(&quality)
+        {
+            problems.push(format!("jpeg quality: {quality} (accepted: 1 to 100)"));
+        }
+        problems
+    }
+}
+
 #[derive(Clone, Debug, Default)]
 pub struct SynthSummary {
     pub scenes: usize,
@@ -119,6 +170,14 @@ pub fn generate(
     config: &SynthConfig,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<SynthSummary> {
+    let problems = config.problems();
+    if !problems.is_empty() {
+        return Err(SensorError::Other(format!(
+            "synthetic dataset for {}: {}",
+            out.display(),
+            problems.join("; ")
+        )));
+    }
     let started = Instant::now();
     let mut tables = Tables::default();
     let channels: Vec<String> = CAMERAS
