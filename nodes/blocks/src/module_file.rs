@@ -4,7 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use burn::module::Module;
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::prelude::*;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 
 #[derive(Debug, thiserror::Error)]
@@ -28,6 +29,59 @@ pub enum ModuleFileError {
         count: usize,
         examples: String,
     },
+    #[error(
+        "{what} weights {path}: tensor `{tensor}` holds {count} non-finite values (NaN or Inf); \
+         weights like these render black images and forecast nothing"
+    )]
+    NonFinite {
+        what: String,
+        path: PathBuf,
+        tensor: String,
+        count: usize,
+    },
+}
+
+/// The first float tensor of a module holding a NaN or an infinity, by its path (the path
+/// is kept as burn's own store keeps it, from the modules entered).
+struct FirstNonFinite {
+    path: Vec<String>,
+    found: Option<(String, usize)>,
+}
+
+impl ModuleVisitor for FirstNonFinite {
+    fn enter_module(&mut self, name: &str, _container_type: &str) {
+        self.path.push(name.to_string());
+    }
+
+    fn exit_module(&mut self, _name: &str, _container_type: &str) {
+        self.path.pop();
+    }
+
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if self.found.is_some() {
+            return;
+        }
+        let count = param
+            .val()
+            .to_data()
+            .iter::<f32>()
+            .filter(|v| !v.is_finite())
+            .count();
+        if count > 0 {
+            self.found = Some((self.path.join("."), count));
+        }
+    }
+}
+
+/// The path of the first float tensor of `module` that holds a non-finite value, with how
+/// many it holds.
+pub fn first_non_finite<M: Module>(module: &M) -> Option<(String, usize)> {
+    let mut visitor = FirstNonFinite {
+        path: Vec::new(),
+        found: None,
+    };
+    module.visit(&mut visitor);
+    visitor.found
 }
 
 /// Writes `module`'s weights as burnpack (the file name is used as given). `what` names the
@@ -78,7 +132,15 @@ pub fn load_module<M: Module>(
         .collect();
     problems.extend(result.errors.iter().map(|e| format!("{e:?}")));
     if problems.is_empty() {
-        Ok(module)
+        match first_non_finite(&module) {
+            Some((tensor, count)) => Err(ModuleFileError::NonFinite {
+                what: what.into(),
+                path: path.to_path_buf(),
+                tensor,
+                count,
+            }),
+            None => Ok(module),
+        }
     } else {
         Err(ModuleFileError::Mismatch {
             what: what.into(),

@@ -9,7 +9,7 @@ use bevworld_blocks::{
     file_digest, load_module, modulate, save_module, seeded_init, sinusoidal_1d, sinusoidal_2d,
     timestep_embedding,
 };
-use burn::module::{Module, ModuleVisitor, Param};
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
 use burn::prelude::*;
 
 fn device() -> Device {
@@ -234,6 +234,43 @@ fn weights_files_round_trip_and_refuse_what_does_not_fit() {
             assert!(error.to_string().contains("none.bpk"), "{error}");
         }
         other => panic!("expected not found, got {other:?}"),
+    }
+}
+
+#[test]
+fn weights_holding_a_nan_are_refused_naming_the_tensor() {
+    /// Puts one NaN into the second float tensor visited.
+    struct Poison(usize);
+    impl ModuleMapper for Poison {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            self.0 += 1;
+            if self.0 != 2 {
+                return param;
+            }
+            param.map(|t| {
+                let shape = t.shape();
+                let mut v = values(t.clone());
+                v[0] = f32::NAN;
+                Tensor::from_data(TensorData::new(v, shape), &t.device())
+            })
+        }
+    }
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("poisoned.bpk");
+    let config = bevworld_blocks::MlpConfig::new(4, 8);
+    let module = seeded_init(1, &device(), |d| config.init(d)).map(&mut Poison(0));
+    save_module(&module, "test", &path).expect("save");
+    match load_module(config.init(&device()), "test", "mlp", &path) {
+        Err(error @ ModuleFileError::NonFinite { .. }) => {
+            let text = error.to_string();
+            // The MLP's tensors in order: fc1.weight, fc1.bias, ...
+            assert!(
+                text.contains("fc1.bias") && text.contains("1 non-finite"),
+                "{text}"
+            );
+            assert!(text.contains("poisoned.bpk"), "{text}");
+        }
+        other => panic!("expected a non-finite refusal, got {other:?}"),
     }
 }
 
