@@ -6,6 +6,14 @@ use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::silu;
 
+/// Layer normalisation over the last axis without a learned affine (DiT's
+/// `elementwise_affine=False`): AdaLN supplies the scale and shift.
+// x: [..., C] -> [..., C]
+pub fn layer_norm<const D: usize>(x: Tensor<D>, epsilon: f64) -> Tensor<D> {
+    let (variance, mean) = x.clone().var_mean_bias(D - 1);
+    (x - mean).div(variance.add_scalar(epsilon).sqrt())
+}
+
 /// `x · (1 + scale) + shift`, the modulation of a normalised activation.
 // x: [..., C], shift and scale broadcastable to it -> [..., C]
 pub fn modulate<const D: usize>(x: Tensor<D>, shift: Tensor<D>, scale: Tensor<D>) -> Tensor<D> {

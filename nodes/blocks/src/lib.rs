@@ -22,11 +22,13 @@ pub mod swin;
 pub mod torch_weights;
 
 pub use activation::gelu;
-pub use adaln::{AdaLnModulation, AdaLnModulationConfig, modulate};
+pub use adaln::{AdaLnModulation, AdaLnModulationConfig, layer_norm, modulate};
 pub use attention::{MASKED, MultiHeadAttention, MultiHeadAttentionConfig, causal_mask};
 pub use cache::TensorCache;
 pub use embedding::{sinusoidal_1d, sinusoidal_2d, timestep_embedding};
 pub use init::seeded_init;
 pub use mlp::{Mlp, MlpConfig};
-pub use module_file::{ModuleFileError, check_file, file_digest, load_module, save_module};
+pub use module_file::{
+    ModuleFileError, check_file, file_digest, first_non_finite, load_module, save_module,
+};
 pub use torch_weights::{TorchLoadError, load_torch_state_dict};
