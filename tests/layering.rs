@@ -45,6 +45,21 @@ const ALLOWED: &[(&str, &[&str])] = &[
         ],
     ),
     (
+        "bevworld-world-model",
+        &["bevworld-types", "bevworld-blocks"],
+    ),
+    (
+        "bevworld-world-model-train",
+        &[
+            "bevworld-types",
+            "bevworld-blocks",
+            "bevworld-training",
+            "bevworld-world-model",
+            "bevworld-sensors",
+            "bevworld-sinks",
+        ],
+    ),
+    (
         "bevworld-tokenizer-train",
         &[
             "bevworld-types",
@@ -157,8 +172,13 @@ fn the_rules_forbid_what_the_architecture_forbids() {
         "bevworld-sinks",
         "bevworld-metrics",
     ];
-    for model in ["bevworld-tokenizer"] {
-        for forbidden in data.iter().chain(&["bevworld-training"]) {
+    // A model knows no data and no training; the world model reads latents, never the
+    // tokenizer that makes them (the statistics file in the types is their contract).
+    for (model, other) in [
+        ("bevworld-tokenizer", "bevworld-world-model"),
+        ("bevworld-world-model", "bevworld-tokenizer"),
+    ] {
+        for forbidden in data.iter().chain(&["bevworld-training", other]) {
             assert!(
                 !rules[model].contains(forbidden),
                 "{model} may use {forbidden}"
@@ -166,7 +186,10 @@ fn the_rules_forbid_what_the_architecture_forbids() {
         }
     }
     for machinery in ["bevworld-graph", "bevworld-blocks", "bevworld-training"] {
-        for forbidden in data.iter().chain(&["bevworld-tokenizer"]) {
+        for forbidden in data
+            .iter()
+            .chain(&["bevworld-tokenizer", "bevworld-world-model"])
+        {
             assert!(
                 !rules[machinery].contains(forbidden),
                 "{machinery} may use {forbidden}"

@@ -1,0 +1,100 @@
+//! The spatial-temporal transformer block (BEVWorld, "Latent BEV Sequence Diffusion"):
+//!
+//! 1. causal temporal attention: each spatial token attends to the same token in its own frame
+//!    and in earlier frames only;
+//! 2. spatial attention among the tokens of one frame;
+//! 3. an MLP.
+//!
+//! Each sub-layer is modulated by its frame's condition (adaLN-Zero, DiT):
+//! `x ← x + g · f(LN(x)·(1 + γ) + β)` with `(β, γ, g) = Linear(SiLU(c))` started at zero, so the
+//! block starts as the identity.
+
+use bevworld_blocks::{
+    AdaLnModulation, AdaLnModulationConfig, Mlp, MlpConfig, MultiHeadAttention,
+    MultiHeadAttentionConfig, layer_norm, modulate,
+};
+use burn::prelude::*;
+
+/// LayerNorm's ε, as DiT's.
+pub const NORM_EPSILON: f64 = 1e-6;
+
+#[derive(Config, Debug)]
+pub struct SpatialTemporalBlockConfig {
+    pub width: usize,
+    pub heads: usize,
+    pub mlp_hidden: usize,
+    pub condition: usize,
+}
+
+#[derive(Module, Debug)]
+pub struct SpatialTemporalBlock {
+    temporal: MultiHeadAttention,
+    spatial: MultiHeadAttention,
+    mlp: Mlp,
+    /// Shift, scale and gate of each of the three sub-layers.
+    modulation: AdaLnModulation,
+}
+
+impl SpatialTemporalBlockConfig {
+    pub fn init(&self, device: &Device) -> SpatialTemporalBlock {
+        SpatialTemporalBlock {
+            temporal: MultiHeadAttentionConfig::new(self.width, self.heads).init(device),
+            spatial: MultiHeadAttentionConfig::new(self.width, self.heads).init(device),
+            mlp: MlpConfig::new(self.width, self.mlp_hidden).init(device),
+            modulation: AdaLnModulationConfig::new(self.condition, self.width, 9).init(device),
+        }
+    }
+}
+
+impl SpatialTemporalBlock {
+    /// `causal` is the additive mask over frames (`bevworld_blocks::causal_mask`).
+    // x: [B, F, L, D], condition: [B, F, c], causal: [F, F] -> [B, F, L, D]
+    pub fn forward(&self, x: Tensor<4>, condition: Tensor<3>, causal: Tensor<2>) -> Tensor<4> {
+        let [batch, frames, tokens, width] = x.dims();
+        // Nine [B, F, 1, D] vectors, broadcast over the frame's tokens.
+        let m: Vec<Tensor<4>> = self
+            .modulation
+            .forward(condition)
+            .into_iter()
+            .map(|v| v.unsqueeze_dim(2))
+            .collect();
+
+        // 1. Causal temporal attention: one sequence of F frames per spatial token.
+        let h = modulate(
+            layer_norm(x.clone(), NORM_EPSILON),
+            m[0].clone(),
+            m[1].clone(),
+        );
+        let h = h
+            .swap_dims(1, 2) // [B, L, F, D]
+            .reshape([batch * tokens, frames, width]);
+        let mask = causal.unsqueeze::<4>(); // [1, 1, F, F]
+        let h = self
+            .temporal
+            .forward(h, Some(mask))
+            .reshape([batch, tokens, frames, width])
+            .swap_dims(1, 2); // [B, F, L, D]
+        let x = x + m[2].clone() * h;
+
+        // 2. Spatial attention within each frame.
+        let h = modulate(
+            layer_norm(x.clone(), NORM_EPSILON),
+            m[3].clone(),
+            m[4].clone(),
+        )
+        .reshape([batch * frames, tokens, width]);
+        let h = self
+            .spatial
+            .forward(h, None)
+            .reshape([batch, frames, tokens, width]);
+        let x = x + m[5].clone() * h;
+
+        // 3. The MLP.
+        let h = modulate(
+            layer_norm(x.clone(), NORM_EPSILON),
+            m[6].clone(),
+            m[7].clone(),
+        );
+        x + m[8].clone() * self.mlp.forward(h)
+    }
+}

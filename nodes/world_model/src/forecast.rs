@@ -1,0 +1,68 @@
+//! A forecast: the N future latents of a context, sampled with DDIM, every future frame
+//! denoised together in one network pass per step.
+
+use bevworld_blocks::init::random_values;
+use burn::prelude::*;
+
+use crate::config::WorldModelConfig;
+use crate::ddim::{DdimConfig, DdimError, clean_and_noise, step, timesteps};
+use crate::model::WorldModel;
+use crate::schedule::NoiseSchedule;
+
+/// What a forecast starts from, standardised (`LatentStats::standardize`) and normalised
+/// (`ActionStats::normalise`).
+pub struct ForecastInputs {
+    /// The condition frames: P past frames and the current one.
+    pub context: Tensor<5>, // [B, P+1, C', H, W]
+    /// The action into every frame, condition frames first, then the N future frames.
+    pub actions: Tensor<3>, // [B, P+1+N, 5]
+    /// The current latent warped into each future ego frame, which the network's residual is
+    /// added to (`residual_over_ego_warp`); `None` for a model that predicts the latent itself.
+    pub base: Option<Tensor<5>>, // [B, N, C', H, W]
+}
+
+/// Draws `[B, N, C', H, W]` standard normal noise from `seed`, on the host.
+pub fn seeded_noise(seed: u64, shape: [usize; 5], device: &Device) -> Tensor<5> {
+    let count = shape.iter().product();
+    Tensor::from_data(
+        TensorData::new(random_values(seed, count, 0.0, 1.0, true), shape),
+        device,
+    )
+}
+
+/// Samples the N future latents (standardised). Condition frames are never altered: they
+/// enter every step as given, at level 0.
+// -> [B, N, C', H, W]
+pub fn forecast(
+    model: &WorldModel,
+    config: &WorldModelConfig,
+    schedule: &NoiseSchedule,
+    inputs: &ForecastInputs,
+    sampler: &DdimConfig,
+) -> Result<Tensor<5>, DdimError> {
+    sampler.check(schedule)?;
+    let [batch, context, channels, height, width] = inputs.context.dims();
+    let future = config.future_frames;
+    let device = inputs.context.device();
+    let shape = [batch, future, channels, height, width];
+    let mut x = seeded_noise(sampler.seed, shape, &device);
+    let target = config.diffusion.target;
+    let plan = timesteps(schedule.steps(), sampler.steps, sampler.spacing);
+    for (index, &(level, previous)) in plan.iter().enumerate() {
+        let levels: Vec<f32> = (0..batch)
+            .flat_map(|_| {
+                std::iter::repeat_n(0.0, context).chain(std::iter::repeat_n(level as f32, future))
+            })
+            .collect();
+        let frames = Tensor::cat(vec![inputs.context.clone(), x.clone()], 1);
+        let output = model.forward(frames, inputs.actions.clone(), &levels, future);
+        let (clean, noise) = clean_and_noise(schedule, target, x, output, level);
+        let fresh = (sampler.eta > 0.0 && previous > 0)
+            .then(|| seeded_noise(sampler.seed.wrapping_add(1 + index as u64), shape, &device));
+        x = step(schedule, clean, noise, level, previous, sampler.eta, fresh);
+    }
+    Ok(match &inputs.base {
+        Some(base) => x + base.clone(),
+        None => x,
+    })
+}

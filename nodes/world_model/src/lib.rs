@@ -1,0 +1,34 @@
+//! The world model of BEVWorld ("Latent BEV Sequence Diffusion"): it forecasts the future BEV
+//! latents of a scene from its past ones, conditioned on the ego's actions. A spatial-temporal
+//! transformer with adaLN-Zero and causal temporal attention predicts, for the noisy future
+//! frames, the noise (or velocity, or clean latent); DDIM samples all future frames in one pass
+//! per step.
+//!
+//! The model reads standardised latents (the tokenizer's statistics file) and normalised
+//! actions (`ActionStats`, shipped with the weights); it knows no dataset.
+
+// Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
+#![cfg_attr(not(test), warn(clippy::unwrap_used))]
+
+pub mod actions;
+pub mod block;
+pub mod condition;
+pub mod config;
+pub mod ddim;
+pub mod ego_warp;
+pub mod forecast;
+pub mod model;
+pub mod patch;
+pub mod schedule;
+pub mod weights;
+
+pub use actions::{ACTION_FEATURES, ActionStats};
+pub use config::{DiffusionConfig, ScheduleKind, Target, WorldModelConfig};
+pub use ddim::{DdimConfig, Spacing};
+pub use ego_warp::{LatentGrid, PlanarMotion, warp_latent};
+pub use forecast::{ForecastInputs, forecast};
+pub use model::WorldModel;
+pub use schedule::NoiseSchedule;
+pub use weights::{
+    WeightsMeta, WorldModelWeights, WorldModelWeightsError, load_weights, save_weights,
+};

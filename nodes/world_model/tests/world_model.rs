@@ -1,0 +1,335 @@
+//! The world model against the invariants it must hold: shapes at both sizes, causality in
+//! time, condition frames the sampler never alters, adaLN-Zero's identity start, seeded and
+//! deterministic sampling, refused configs and weights that do not pair.
+
+use std::path::PathBuf;
+
+use bevworld_blocks::init::{random_normal, random_tensor};
+use bevworld_blocks::{causal_mask, seeded_init};
+use bevworld_world_model::weights::meta_path_for;
+use bevworld_world_model::{
+    ActionStats, DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WeightsMeta, WorldModel,
+    WorldModelConfig, WorldModelWeightsError, forecast, load_weights, save_weights,
+};
+use burn::prelude::*;
+
+fn device() -> Device {
+    Device::flex()
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn config(name: &str) -> WorldModelConfig {
+    WorldModelConfig::from_yaml_file(&repo().join(format!("configs/models/{name}.yaml")))
+        .expect("config")
+}
+
+/// The tiny config made smaller still, for tests that run many forward passes.
+fn small() -> WorldModelConfig {
+    let mut c = config("world-model-tiny");
+    c.latent_size = [16, 16];
+    c.width = 32;
+    c.heads = 2;
+    c.depth = 2;
+    c.condition_half = 16;
+    c.context_frames = 2;
+    c.future_frames = 3;
+    c
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().expect("f32")
+}
+
+/// A model whose gates and head are no longer zero, so that every path carries signal.
+fn trained_like(config: &WorldModelConfig, seed: u64) -> WorldModel {
+    use burn::module::{ModuleMapper, Param};
+    struct Perturb(u64);
+    impl ModuleMapper for Perturb {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            self.0 += 1;
+            let seed = self.0;
+            param.map(|t| {
+                let noise = random_normal(seed, t.dims(), 0.0, 0.05, &t.device());
+                t + noise
+            })
+        }
+    }
+    seeded_init(seed, &device(), |d| config.init(d)).map(&mut Perturb(seed))
+}
+
+fn inputs(config: &WorldModelConfig, batch: usize, seed: u64) -> (Tensor<5>, Tensor<3>) {
+    let frames = config.context_frames + config.future_frames;
+    let [h, w] = config.latent_size;
+    let latents = random_normal(
+        seed,
+        [batch, frames, config.latent_channels, h, w],
+        0.0,
+        1.0,
+        &device(),
+    );
+    let actions = random_normal(seed + 1, [batch, frames, 5], 0.0, 1.0, &device());
+    (latents, actions)
+}
+
+fn levels(config: &WorldModelConfig, batch: usize, level: f32) -> Vec<f32> {
+    (0..batch)
+        .flat_map(|_| {
+            std::iter::repeat_n(0.0, config.context_frames)
+                .chain(std::iter::repeat_n(level, config.future_frames))
+        })
+        .collect()
+}
+
+#[test]
+fn the_tiny_model_predicts_its_future_frames_only() {
+    let c = config("world-model-tiny");
+    assert_eq!(c.token_grid(), [16, 16]);
+    let model = seeded_init(0, &device(), |d| c.init(d));
+    let (latents, actions) = inputs(&c, 2, 3);
+    let out = model.forward(latents, actions, &levels(&c, 2, 500.0), c.future_frames);
+    assert_eq!(out.dims(), [2, 6, 4, 64, 64]);
+}
+
+#[test]
+fn the_paper_model_runs_at_batch_one() {
+    // The paper's widths and patch; one block and two frames, since depth and frame count
+    // change no shape and the full model costs ~1 TFLOP a pass on a CPU.
+    let mut c = config("world-model-paper");
+    assert_eq!(c.token_grid(), [48, 48]);
+    c.depth = 1;
+    c.context_frames = 1;
+    c.future_frames = 1;
+    let model = seeded_init(0, &device(), |d| c.init(d));
+    let (latents, actions) = inputs(&c, 1, 4);
+    let out = model.forward(latents, actions, &levels(&c, 1, 10.0), 1);
+    assert_eq!(out.dims(), [1, 1, 4, 96, 96]);
+}
+
+#[test]
+fn a_frame_never_changes_the_output_of_an_earlier_frame() {
+    let c = small();
+    let model = trained_like(&c, 7);
+    let (latents, actions) = inputs(&c, 1, 11);
+    let frames = c.context_frames + c.future_frames;
+    let all = c.future_frames + c.context_frames;
+    // Predict every frame, so that condition frames' outputs are checked too.
+    let before = model.forward(latents.clone(), actions.clone(), &levels(&c, 1, 300.0), all);
+    for k in 1..frames {
+        let mut changed = latents.clone();
+        let bump = random_tensor(99 + k as u64, [1, 1, 4, 16, 16], -3.0, 3.0, &device());
+        changed = changed.clone().slice_assign(
+            [0..1, k..k + 1, 0..4, 0..16, 0..16],
+            changed.narrow(1, k, 1) + bump,
+        );
+        let mut changed_actions = actions.clone();
+        changed_actions = changed_actions.clone().slice_assign(
+            [0..1, k..k + 1, 0..5],
+            changed_actions.narrow(1, k, 1).add_scalar(2.0),
+        );
+        let after = model.forward(changed, changed_actions, &levels(&c, 1, 300.0), all);
+        let earlier = |t: Tensor<5>| values(t.narrow(1, 0, k));
+        assert_eq!(
+            earlier(before.clone()),
+            earlier(after.clone()),
+            "frame {k} leaked backwards"
+        );
+        let moved: f32 = values((before.clone().narrow(1, k, 1) - after.narrow(1, k, 1)).abs())
+            .iter()
+            .sum();
+        assert!(moved > 1e-3, "frame {k}'s own output ignored its change");
+    }
+}
+
+#[test]
+fn every_block_starts_as_the_identity_and_the_model_at_zero() {
+    let c = small();
+    let model = seeded_init(3, &device(), |d| c.init(d));
+    let x = random_normal(5, [1, 5, 64, c.width], 0.0, 1.0, &device());
+    let condition = random_normal(6, [1, 5, 2 * c.condition_half], 0.0, 1.0, &device());
+    for block in model.blocks() {
+        let out = block.forward(x.clone(), condition.clone(), causal_mask(5, &device()));
+        assert_eq!(values(out), values(x.clone()));
+    }
+    let (latents, actions) = inputs(&c, 1, 8);
+    let out = model.forward(latents, actions, &levels(&c, 1, 900.0), c.future_frames);
+    assert!(values(out).iter().all(|v| *v == 0.0));
+}
+
+fn forecast_inputs(c: &WorldModelConfig, seed: u64) -> ForecastInputs {
+    let [h, w] = c.latent_size;
+    let context = random_normal(seed, [1, c.context_frames, 4, h, w], 0.0, 1.0, &device());
+    let frames = c.context_frames + c.future_frames;
+    let actions = random_normal(seed + 1, [1, frames, 5], 0.0, 1.0, &device());
+    let base = random_normal(seed + 2, [1, c.future_frames, 4, h, w], 0.0, 1.0, &device());
+    ForecastInputs {
+        context,
+        actions,
+        base: Some(base),
+    }
+}
+
+#[test]
+fn sampling_is_seeded_and_deterministic_and_leaves_the_context_alone() {
+    let c = small();
+    let model = trained_like(&c, 9);
+    let schedule = NoiseSchedule::new(&c.diffusion);
+    let inputs = forecast_inputs(&c, 20);
+    let context_before = values(inputs.context.clone());
+    let sampler = |seed: u64, eta: f64| DdimConfig {
+        steps: 4,
+        eta,
+        spacing: Spacing::Trailing,
+        seed,
+    };
+    let a = values(forecast(&model, &c, &schedule, &inputs, &sampler(1, 0.0)).expect("a"));
+    let again = values(forecast(&model, &c, &schedule, &inputs, &sampler(1, 0.0)).expect("b"));
+    let other = values(forecast(&model, &c, &schedule, &inputs, &sampler(2, 0.0)).expect("c"));
+    assert_eq!(a, again);
+    assert!(a.iter().all(|v| v.is_finite()));
+    let differ = a.iter().zip(&other).filter(|(x, y)| x != y).count();
+    assert!(
+        differ > a.len() / 2,
+        "seeds 1 and 2 agree on {} of {} values",
+        a.len() - differ,
+        a.len()
+    );
+    // η > 0 adds seeded noise: still deterministic for a seed.
+    let noisy = values(forecast(&model, &c, &schedule, &inputs, &sampler(1, 1.0)).expect("d"));
+    assert_eq!(
+        noisy,
+        values(forecast(&model, &c, &schedule, &inputs, &sampler(1, 1.0)).expect("e"))
+    );
+    assert_ne!(noisy, a);
+    assert_eq!(values(inputs.context.clone()), context_before);
+    // One step and every step from pure noise under zero terminal SNR stay finite.
+    for steps in [1, 1000] {
+        let sampler = DdimConfig {
+            steps,
+            eta: 0.0,
+            spacing: Spacing::Trailing,
+            seed: 3,
+        };
+        if steps == 1000 {
+            // 1000 passes of even the small model take a while; 1000-step finiteness of the
+            // sampler alone is the schedule's test. Here: 50 steps, the paper's usual count.
+            let sampler = DdimConfig {
+                steps: 50,
+                ..sampler
+            };
+            let out = values(forecast(&model, &c, &schedule, &inputs, &sampler).expect("50"));
+            assert!(out.iter().all(|v| v.is_finite()));
+        } else {
+            let out = values(forecast(&model, &c, &schedule, &inputs, &sampler).expect("1"));
+            assert!(out.iter().all(|v| v.is_finite()));
+        }
+    }
+    let bad = DdimConfig {
+        steps: 0,
+        eta: 0.0,
+        spacing: Spacing::Trailing,
+        seed: 0,
+    };
+    assert!(forecast(&model, &c, &schedule, &inputs, &bad).is_err());
+    let bad = DdimConfig { steps: 1001, ..bad };
+    let error = forecast(&model, &c, &schedule, &inputs, &bad).expect_err("refused");
+    assert!(
+        error.to_string().contains("1001") && error.to_string().contains("1000"),
+        "{error}"
+    );
+}
+
+#[test]
+fn configs_that_cannot_work_are_refused_naming_the_field() {
+    let text =
+        std::fs::read_to_string(repo().join("configs/models/world-model-tiny.yaml")).expect("read");
+    let unknown = format!("{text}\nescape_at_fra: true\n");
+    let error = WorldModelConfig::from_yaml(&unknown, "wm.yaml").expect_err("unknown key");
+    assert!(error.to_string().contains("escape_at_fra"), "{error}");
+    let epsilon = text.replace("target: v", "target: epsilon");
+    let error = WorldModelConfig::from_yaml(&epsilon, "wm.yaml").expect_err("epsilon at zero SNR");
+    assert!(error.to_string().contains("diffusion.target"), "{error}");
+    let odd = text.replace("patch: 4", "patch: 3");
+    let error = WorldModelConfig::from_yaml(&odd, "wm.yaml").expect_err("patch");
+    assert!(
+        error.to_string().contains("latent_size") && error.to_string().contains("wm.yaml"),
+        "{error}"
+    );
+    let heads = text.replace("heads: 4", "heads: 3");
+    assert!(
+        WorldModelConfig::from_yaml(&heads, "wm.yaml")
+            .expect_err("heads")
+            .to_string()
+            .contains("heads")
+    );
+}
+
+fn meta(c: &WorldModelConfig) -> WeightsMeta {
+    WeightsMeta {
+        model: c.name.clone(),
+        tokenizer_model: "tokenizer-tiny".into(),
+        tokenizer_weights_hash: "00000000deadbeef".into(),
+        action_stats: ActionStats {
+            mean: [8.0, 0.0, 4.0, 0.0, 0.0],
+            std: [2.0, 0.2, 1.0, 0.1, 0.1],
+            count: 10,
+        },
+        steps: 1,
+        command: "test".into(),
+    }
+}
+
+#[test]
+fn weights_load_only_with_their_config_and_their_tokenizer() {
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("wm.bpk");
+    let c = small();
+    let model = trained_like(&c, 4);
+    save_weights(&model, &meta(&c), &path).expect("save");
+    let loaded = load_weights(
+        &c,
+        &path,
+        Some(("tokenizer-tiny", "00000000deadbeef")),
+        &device(),
+    )
+    .expect("load");
+    assert_eq!(loaded.meta, meta(&c));
+    let (latents, actions) = inputs(&c, 1, 2);
+    let lv = levels(&c, 1, 40.0);
+    assert_eq!(
+        values(
+            loaded
+                .model
+                .forward(latents.clone(), actions.clone(), &lv, 3)
+        ),
+        values(model.forward(latents, actions, &lv, 3))
+    );
+    match load_weights(
+        &c,
+        &path,
+        Some(("tokenizer-tiny", "1111111111111111")),
+        &device(),
+    ) {
+        Err(error @ WorldModelWeightsError::Tokenizer { .. }) => {
+            let text = error.to_string();
+            assert!(
+                text.contains("00000000deadbeef") && text.contains("1111111111111111"),
+                "{text}"
+            );
+        }
+        other => panic!("expected a tokenizer mismatch, got {:?}", other.err()),
+    }
+    let mut wider = c.clone();
+    wider.width = 64;
+    let error = load_weights(&wider, &path, None, &device())
+        .err()
+        .expect("wider refused");
+    assert!(error.to_string().contains("do not fit"), "{error}");
+    std::fs::remove_file(meta_path_for(&path)).expect("remove meta");
+    let error = load_weights(&c, &path, None, &device())
+        .err()
+        .expect("no meta");
+    assert!(error.to_string().contains("wm.meta.json"), "{error}");
+}

@@ -1,0 +1,302 @@
+//! A whole world-model run, as `bevworld train world-model` asks for one: the configs, the
+//! tokenizer the latents must come from, the latent caches, the action statistics, the
+//! validation windows, the loop (`bevworld_training::run_loop`) over the three stages, and the
+//! shipped weights with their metadata and curves. The command line parses flags, exports the
+//! caches through the graph, and prints.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use bevworld_blocks::file_digest;
+use bevworld_training::checkpoint;
+use bevworld_training::curves::CurvesError;
+use bevworld_training::metrics_log::MetricsLogError;
+use bevworld_training::{LoopPlan, MetricsLog, Observer, Trainee, plot_curves, run_loop};
+use bevworld_types::{LatentStatsFile, StatsFileError, stats_path_for};
+use bevworld_world_model::config::ConfigError as ModelConfigError;
+use bevworld_world_model::weights::{WorldModelWeightsError, save_weights};
+use bevworld_world_model::{ActionStats, LatentGrid, WeightsMeta, WorldModelConfig};
+use burn::prelude::*;
+
+use crate::config::{
+    CacheConfig, ConfigError, KEYFRAMES_INDEX, SWEEPS_INDEX, TrainWorldModelConfig,
+};
+use crate::data::{DataError, Expected, LatentSequences, load_sequences};
+use crate::trainer::{CURVES, HorizonScores, TrainError, TrainingData, WorldModelTrainer, columns};
+use crate::window::{WindowShape, WindowValues};
+
+/// One run, as asked for.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainRequest {
+    pub config: PathBuf,
+    /// The run folder: checkpoints, `metrics.csv`, `curves.png`, the weights at the end.
+    pub out: PathBuf,
+    pub resume: bool,
+    /// Stop after this step, keeping the config's stages and schedules.
+    pub until: Option<usize>,
+    pub threads: Option<usize>,
+    pub log_every: usize,
+    /// The command line, recorded in the weights' metadata.
+    pub command: String,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    ModelConfig(#[from] ModelConfigError),
+    #[error(
+        "{run} already holds checkpoints: pass --resume to continue that run, or choose another --out"
+    )]
+    Exists { run: PathBuf },
+    #[error("{path}: {message}")]
+    Tokenizer { path: PathBuf, message: String },
+    #[error(transparent)]
+    Stats(#[from] StatsFileError),
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error("actions of the training cache: {0}")]
+    Actions(#[from] bevworld_world_model::actions::ActionStatsError),
+    #[error(transparent)]
+    Train(#[from] TrainError),
+    #[error(transparent)]
+    Weights(#[from] WorldModelWeightsError),
+    #[error(transparent)]
+    Log(#[from] MetricsLogError),
+    #[error(transparent)]
+    Curves(#[from] CurvesError),
+    #[error("--until 0: a run of no steps would ship untrained weights")]
+    NoSteps,
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+impl From<checkpoint::CheckpointError> for RunError {
+    fn from(error: checkpoint::CheckpointError) -> Self {
+        Self::Train(TrainError::Checkpoint(error))
+    }
+}
+
+/// The tokenizer whose latents a run learns: its name (from its statistics file) and the
+/// digest of its weights, which the statistics file and every cached latent must carry.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TokenizerIdentity {
+    pub model: String,
+    pub weights_hash: String,
+    pub stats: LatentStatsFile,
+}
+
+/// Reads the tokenizer's weights digest and its statistics file, refusing statistics made
+/// with other weights.
+pub fn tokenizer_identity(weights: &Path) -> Result<TokenizerIdentity, RunError> {
+    let weights_hash = file_digest(weights).map_err(|e| RunError::Tokenizer {
+        path: weights.to_path_buf(),
+        message: format!("cannot read the tokenizer weights: {e}"),
+    })?;
+    let stats_path = stats_path_for(weights);
+    let stats = LatentStatsFile::load(&stats_path)?;
+    stats.check_matches(&stats.model, &weights_hash, &stats_path)?;
+    Ok(TokenizerIdentity {
+        model: stats.model.clone(),
+        weights_hash,
+        stats,
+    })
+}
+
+/// Whether a cache holds both of its indexes.
+pub fn cache_is_complete(cache: &CacheConfig) -> bool {
+    cache.latents.join(SWEEPS_INDEX).is_file() && cache.latents.join(KEYFRAMES_INDEX).is_file()
+}
+
+/// What a finished run wrote and measured.
+#[derive(Clone, Debug)]
+pub struct TrainSummary {
+    pub steps: usize,
+    pub minutes: f64,
+    pub weights: PathBuf,
+    pub log: PathBuf,
+    pub curves: PathBuf,
+    pub scores: HorizonScores,
+    pub action_stats: ActionStats,
+    pub train_frames: (usize, usize),
+    pub gaps: usize,
+}
+
+/// What a run reports as it goes, beside each step and validation.
+pub trait Progress: Observer {
+    fn prepared(&mut self, _message: &str) {}
+    fn started(&mut self, _step: usize, _stop: usize, _resumed: bool) {}
+}
+
+impl Progress for () {}
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> RunError + '_ {
+    move |source| RunError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// `count` windows spread evenly over every window of `frames` frames.
+fn spread_windows(sequences: &LatentSequences, frames: usize, count: usize) -> Vec<(usize, usize)> {
+    let all = sequences.windows(frames);
+    if all.len() <= count {
+        return all;
+    }
+    (0..count).map(|i| all[i * all.len() / count]).collect()
+}
+
+/// Trains the world model on `device` (autodiff is added here); the caches must exist
+/// (`cache_is_complete`).
+pub fn train(
+    request: &TrainRequest,
+    device: &Device,
+    progress: &mut dyn Progress,
+) -> Result<TrainSummary, RunError> {
+    let config = TrainWorldModelConfig::from_yaml_file(&request.config)?;
+    let model_config = WorldModelConfig::from_yaml_file(&config.model)?;
+    if request.until == Some(0) {
+        return Err(RunError::NoSteps);
+    }
+    let has_checkpoint = checkpoint::latest(&request.out).is_ok();
+    if has_checkpoint && !request.resume {
+        return Err(RunError::Exists {
+            run: request.out.clone(),
+        });
+    }
+    let device = device.clone().autodiff();
+    let device = &device;
+    let tokenizer = tokenizer_identity(&config.tokenizer_weights)?;
+    let expected = Expected {
+        model: tokenizer.model.clone(),
+        weights_hash: tokenizer.weights_hash.clone(),
+        shape: [
+            model_config.latent_channels,
+            model_config.latent_size[0],
+            model_config.latent_size[1],
+        ],
+        stats: tokenizer.stats.stats.clone(),
+        gap_factor: config.gap_factor,
+    };
+    let sweeps = load_sequences(&config.train.latents, SWEEPS_INDEX, &expected)?;
+    let keyframes = load_sequences(&config.train.latents, KEYFRAMES_INDEX, &expected)?;
+    let val = load_sequences(&config.val.latents, KEYFRAMES_INDEX, &expected)?;
+    // The model runs at keyframes: its actions are normalised with the keyframe actions'
+    // statistics.
+    let action_stats = ActionStats::compute(keyframes.actions().iter())?;
+    let grid = LatentGrid {
+        channels: model_config.latent_channels,
+        height: model_config.latent_size[0],
+        width: model_config.latent_size[1],
+        x_range: model_config.x_range,
+        y_range: model_config.y_range,
+    };
+    let shape = WindowShape {
+        context: model_config.context_frames,
+        future: model_config.future_frames,
+        grid,
+        residual: model_config.residual_over_ego_warp,
+    };
+    let validation: Vec<WindowValues> = spread_windows(
+        &val,
+        shape.context + shape.future,
+        config.validation.windows,
+    )
+    .into_iter()
+    .map(|(s, start)| WindowValues::cut(&val.sequences[s], start, &shape, &action_stats))
+    .collect();
+    let train_frames = (sweeps.frames(), keyframes.frames());
+    let gaps = sweeps.gaps + keyframes.gaps + val.gaps;
+    progress.prepared(&format!(
+        "{} sweeps and {} keyframes to learn from ({} scenes), {} validation windows; {} gaps split",
+        train_frames.0,
+        train_frames.1,
+        keyframes.sequences.len(),
+        validation.len(),
+        gaps
+    ));
+
+    std::fs::create_dir_all(&request.out).map_err(io(&request.out))?;
+    for (source, name) in [
+        (&request.config, "train-config.yaml"),
+        (&config.model, "model-config.yaml"),
+    ] {
+        let target = request.out.join(name);
+        std::fs::copy(source, &target).map_err(io(&target))?;
+    }
+    let threads = request
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
+    let data = TrainingData {
+        sweeps,
+        keyframes,
+        validation,
+    };
+    let mut trainer = WorldModelTrainer::new(
+        config.clone(),
+        model_config.clone(),
+        action_stats.clone(),
+        data,
+        device,
+        threads,
+    )?;
+    if request.resume && has_checkpoint {
+        trainer = trainer.resume(&request.out)?;
+    }
+    let total = config.total_steps();
+    let stop = request.until.unwrap_or(total).min(total);
+    let resumed_at = trainer.step();
+    progress.started(resumed_at, stop, request.resume && has_checkpoint);
+    let mut log = MetricsLog::open(
+        &request.out,
+        &columns(),
+        (resumed_at > 0).then_some(resumed_at),
+    )?;
+    let started = Instant::now();
+    let plan = LoopPlan {
+        stop,
+        log_every: request.log_every.max(1),
+        validate_every: config.validation.every,
+        checkpoint_every: config.checkpoint_every,
+    };
+    let last = run_loop(
+        &mut trainer,
+        &request.out,
+        plan,
+        &mut log,
+        started,
+        progress,
+    )?;
+    // The loop validates at its last step; a run resumed at its end validates here.
+    let scores = match (last, trainer.last_scores()) {
+        (Some(_), Some(scores)) => scores.clone(),
+        _ => trainer.scores(&trainer.shipped_model())?,
+    };
+    let weights = request.out.join(format!("{}.bpk", model_config.name));
+    let meta = WeightsMeta {
+        model: model_config.name.clone(),
+        tokenizer_model: tokenizer.model.clone(),
+        tokenizer_weights_hash: tokenizer.weights_hash.clone(),
+        action_stats: action_stats.clone(),
+        steps: trainer.step(),
+        command: request.command.clone(),
+    };
+    save_weights(&trainer.shipped_model(), &meta, &weights)?;
+    let curves = request.out.join("curves.png");
+    plot_curves(log.path(), &curves, &CURVES)?;
+    Ok(TrainSummary {
+        steps: trainer.step(),
+        minutes: started.elapsed().as_secs_f64() / 60.0,
+        weights,
+        log: log.path().to_path_buf(),
+        curves,
+        scores,
+        action_stats,
+        train_frames,
+        gaps,
+    })
+}

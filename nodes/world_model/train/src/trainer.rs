@@ -1,0 +1,566 @@
+//! The world model's side of training: a step draws windows of the current stage, a noise
+//! level and seeded noise for each, and takes the L1 loss on the future frames only (the
+//! paper's), on micro-batches spread over worker threads; validation samples keyframe windows
+//! with DDIM and scores each horizon against copy-last and ego-warp, computed in the same
+//! place. The machinery (schedule, clipping, the weights' average, checkpoints, the
+//! data-parallel step, the loop) is `bevworld_training`'s.
+
+use std::path::Path;
+
+use bevworld_blocks::init::random_values;
+use bevworld_blocks::module_file::{ModuleFileError, load_module, save_module};
+use bevworld_blocks::seeded_init;
+use bevworld_training::checkpoint::{self, CheckpointError, CheckpointState};
+use bevworld_training::ema::{self, MismatchedModules};
+use bevworld_training::metrics_log::MetricsLogError;
+use bevworld_training::{
+    Curve, SplitMix64, StepReport, Trainee, Validation, WorkerPanicked, clip_global_norm,
+    parallel_map, replica, sum_in_order,
+};
+use bevworld_world_model::ddim::noisy_and_target;
+use bevworld_world_model::{
+    ActionStats, ForecastInputs, LatentGrid, NoiseSchedule, WorldModel, WorldModelConfig, forecast,
+};
+use burn::module::Module;
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+
+use crate::config::{Rate, TrainWorldModelConfig};
+use crate::data::LatentSequences;
+use crate::window::{WindowBatch, WindowShape, WindowValues};
+
+/// Horizons validation reports, at keyframes (0.5 s apart).
+pub const HORIZONS: usize = 6;
+/// `l1_0.5s` … `l1_3.0s`: the forecast's standardised latent L1 per horizon.
+pub const FORECAST_COLUMNS: [&str; HORIZONS] = [
+    "l1_0.5s", "l1_1.0s", "l1_1.5s", "l1_2.0s", "l1_2.5s", "l1_3.0s",
+];
+/// The same L1 for `x_t` repeated.
+pub const COPY_LAST_COLUMNS: [&str; HORIZONS] = [
+    "copy_last_0.5s",
+    "copy_last_1.0s",
+    "copy_last_1.5s",
+    "copy_last_2.0s",
+    "copy_last_2.5s",
+    "copy_last_3.0s",
+];
+/// The same L1 for `x_t` warped by the known ego motion.
+pub const EGO_WARP_COLUMNS: [&str; HORIZONS] = [
+    "ego_warp_0.5s",
+    "ego_warp_1.0s",
+    "ego_warp_1.5s",
+    "ego_warp_2.0s",
+    "ego_warp_2.5s",
+    "ego_warp_3.0s",
+];
+
+/// Every column of the run's `metrics.csv`.
+pub fn columns() -> Vec<&'static str> {
+    let mut columns = vec![
+        "step",
+        "phase",
+        "elapsed_s",
+        "lr",
+        "loss",
+        "grad_norm",
+        "stage",
+    ];
+    columns.extend(FORECAST_COLUMNS);
+    columns.extend(COPY_LAST_COLUMNS);
+    columns.extend(EGO_WARP_COLUMNS);
+    columns
+}
+
+/// `RUN/curves.png`.
+pub const CURVES: [Curve; 3] = [
+    Curve {
+        title: "training loss (L1)",
+        phase: "train",
+        column: "loss",
+        log_scale: true,
+    },
+    Curve {
+        title: "validation latent L1 at 1 s",
+        phase: "val",
+        column: "l1_1.0s",
+        log_scale: false,
+    },
+    Curve {
+        title: "validation latent L1 at 3 s",
+        phase: "val",
+        column: "l1_3.0s",
+        log_scale: false,
+    },
+];
+
+/// The files of a world-model checkpoint.
+pub mod files {
+    pub const MODEL: &str = "model.bpk";
+    pub const OPTIMIZER: &str = "optimizer.bpk";
+    pub const WEIGHT_AVERAGE: &str = "ema.bpk";
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(
+        "step {step}: the {what} is {value}; the step was not applied and the last checkpoint is the last good state (lower optimizer.lr or optimizer.grad_clip_norm)"
+    )]
+    NonFinite {
+        step: usize,
+        what: &'static str,
+        value: f64,
+    },
+    #[error(
+        "stage '{stage}': no window of {frames} consecutive {rate:?} frames in the training cache"
+    )]
+    NoWindows {
+        stage: String,
+        frames: usize,
+        rate: Rate,
+    },
+    #[error("no validation window of {frames} consecutive keyframes")]
+    NoValidationWindows { frames: usize },
+    #[error("step {step}: a micro-batch failed ({source}); the step was not applied")]
+    StepWorker { step: usize, source: WorkerPanicked },
+    #[error("validation failed: window {} ({source})", source.item)]
+    ValidationWorker { source: WorkerPanicked },
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Weights(#[from] ModuleFileError),
+    #[error(transparent)]
+    WeightAverage(#[from] MismatchedModules),
+    #[error(transparent)]
+    Log(#[from] MetricsLogError),
+    #[error(transparent)]
+    Sampler(#[from] bevworld_world_model::ddim::DdimError),
+}
+
+/// The training data, already cut where it can be.
+pub struct TrainingData {
+    pub sweeps: LatentSequences,
+    pub keyframes: LatentSequences,
+    /// Validation keyframe windows, cut with the model's context and future.
+    pub validation: Vec<WindowValues>,
+}
+
+/// One window of a step, drawn before any work starts so that the draws, and so the run, do
+/// not depend on how the work is spread over threads.
+#[derive(Clone, Debug)]
+struct Draw {
+    sequence: usize,
+    start: usize,
+    level: usize,
+    noise_seed: u64,
+}
+
+pub struct WorldModelTrainer {
+    config: TrainWorldModelConfig,
+    model_config: WorldModelConfig,
+    schedule: NoiseSchedule,
+    grid: LatentGrid,
+    action_stats: ActionStats,
+    data: TrainingData,
+    /// Windows of each stage: `(sequence, first frame)`.
+    stage_windows: Vec<Vec<(usize, usize)>>,
+    device: Device,
+    model: WorldModel,
+    optimizer: ModuleOptimizer,
+    weight_average: Option<WorldModel>,
+    rng: SplitMix64,
+    step: usize,
+    threads: usize,
+    /// The last validation's scores.
+    last_scores: Option<HorizonScores>,
+}
+
+fn scalar(tensor: Tensor<1>) -> f64 {
+    f64::from(tensor.into_scalar::<f32>())
+}
+
+impl WorldModelTrainer {
+    /// A fresh run, the model initialised from `config.seed`; `device` is an autodiff device.
+    pub fn new(
+        config: TrainWorldModelConfig,
+        model_config: WorldModelConfig,
+        action_stats: ActionStats,
+        data: TrainingData,
+        device: &Device,
+        threads: usize,
+    ) -> Result<Self, TrainError> {
+        let grid = LatentGrid {
+            channels: model_config.latent_channels,
+            height: model_config.latent_size[0],
+            width: model_config.latent_size[1],
+            x_range: model_config.x_range,
+            y_range: model_config.y_range,
+        };
+        let mut stage_windows = Vec::new();
+        for stage in &config.stages {
+            let frames = stage.context + stage.future;
+            let sequences = match stage.rate {
+                Rate::Sweeps => &data.sweeps,
+                Rate::Keyframes => &data.keyframes,
+            };
+            let windows = sequences.windows(frames);
+            if windows.is_empty() {
+                return Err(TrainError::NoWindows {
+                    stage: stage.name.clone(),
+                    frames,
+                    rate: stage.rate,
+                });
+            }
+            stage_windows.push(windows);
+        }
+        if data.validation.is_empty() {
+            return Err(TrainError::NoValidationWindows {
+                frames: model_config.context_frames + model_config.future_frames,
+            });
+        }
+        let model = seeded_init(config.seed, device, |d| model_config.init(d));
+        let weight_average = config.ema_decay.map(|_| model.valid());
+        Ok(Self {
+            schedule: NoiseSchedule::new(&model_config.diffusion),
+            optimizer: config.optimizer.adamw(),
+            rng: SplitMix64::new(config.seed ^ 0x005e_ed0f_d1ff),
+            grid,
+            action_stats,
+            data,
+            stage_windows,
+            device: device.clone(),
+            model,
+            weight_average,
+            step: 0,
+            threads: threads.max(1),
+            last_scores: None,
+            config,
+            model_config,
+        })
+    }
+
+    /// Continues from the run's newest checkpoint: parameters, optimiser moments, step and
+    /// RNG state, so the continuation equals an uninterrupted run.
+    pub fn resume(mut self, run: &Path) -> Result<Self, TrainError> {
+        let (checkpoint, state) = checkpoint::latest(run)?;
+        let file = |name: &str| checkpoint.file(name);
+        let name = self.model_config.name.clone();
+        self.model = load_module(
+            self.model_config.init(&self.device),
+            "world model",
+            &name,
+            &file(files::MODEL),
+        )?;
+        self.optimizer = self
+            .config
+            .optimizer
+            .adamw()
+            .load(file(files::OPTIMIZER))
+            .map_err(|e| checkpoint::io_error(&file(files::OPTIMIZER), format!("{e:?}")))?;
+        if self.config.ema_decay.is_some() {
+            let inner = self.device.clone().inner();
+            self.weight_average = Some(load_module(
+                self.model_config.init(&inner),
+                "world model",
+                &name,
+                &file(files::WEIGHT_AVERAGE),
+            )?);
+        }
+        self.step = state.step;
+        self.rng = SplitMix64 {
+            state: state.rng_state,
+        };
+        Ok(self)
+    }
+
+    pub fn last_scores(&self) -> Option<&HorizonScores> {
+        self.last_scores.as_ref()
+    }
+
+    pub fn model_config(&self) -> &WorldModelConfig {
+        &self.model_config
+    }
+
+    /// The weights the run ships and validates: the moving average when kept, else the last
+    /// iterate; on the inner device.
+    pub fn shipped_model(&self) -> WorldModel {
+        self.weight_average
+            .clone()
+            .unwrap_or_else(|| self.model.valid())
+    }
+
+    /// One optimiser step.
+    pub fn train_step(&mut self) -> Result<StepReport, TrainError> {
+        let step = self.step + 1;
+        let Some((stage_index, stage, stage_start)) = self.config.stage_at(self.step) else {
+            return Err(TrainError::NoWindows {
+                stage: "after the last stage".into(),
+                frames: 0,
+                rate: Rate::Keyframes,
+            });
+        };
+        let stage = stage.clone();
+        let windows = &self.stage_windows[stage_index];
+        let draws: Vec<Draw> = (0..self.config.batch)
+            .map(|_| {
+                let (sequence, start) = windows[self.rng.below(windows.len())];
+                Draw {
+                    sequence,
+                    start,
+                    level: 1 + self.rng.below(self.schedule.steps()),
+                    noise_seed: self.rng.next_u64(),
+                }
+            })
+            .collect();
+        let micro: Vec<&[Draw]> = draws.chunks(self.config.micro_batch).collect();
+        let shape = WindowShape {
+            context: stage.context,
+            future: stage.future,
+            grid: self.grid,
+            residual: self.model_config.residual_over_ego_warp,
+        };
+        let sequences = match stage.rate {
+            Rate::Sweeps => &self.data.sweeps,
+            Rate::Keyframes => &self.data.keyframes,
+        };
+        let (model, schedule, stats, device) = (
+            &self.model,
+            &self.schedule,
+            &self.action_stats,
+            &self.device,
+        );
+        let target = self.model_config.diffusion.target;
+        let batch = self.config.batch as f64;
+        let outcomes = parallel_map(
+            &micro,
+            self.threads,
+            || replica(model),
+            |model, draws| {
+                let windows: Vec<WindowValues> = draws
+                    .iter()
+                    .map(|d| {
+                        WindowValues::cut(&sequences.sequences[d.sequence], d.start, &shape, stats)
+                    })
+                    .collect();
+                let refs: Vec<&WindowValues> = windows.iter().collect();
+                let inputs = WindowBatch::new(&refs, &shape, device);
+                let dims = inputs.diffused.dims();
+                let per_window: usize = dims[1..].iter().product();
+                let noise: Vec<f32> = draws
+                    .iter()
+                    .flat_map(|d| random_values(d.noise_seed, per_window, 0.0, 1.0, true))
+                    .collect();
+                let noise = Tensor::<5>::from_data(TensorData::new(noise, dims), device);
+                let levels: Vec<usize> = draws.iter().map(|d| d.level).collect();
+                let (noisy, wanted) =
+                    noisy_and_target(schedule, target, inputs.diffused, noise, &levels);
+                let frame_levels: Vec<f32> = levels
+                    .iter()
+                    .flat_map(|&l| {
+                        std::iter::repeat_n(0.0, shape.context)
+                            .chain(std::iter::repeat_n(l as f32, shape.future))
+                    })
+                    .collect();
+                let frames = Tensor::cat(vec![inputs.context, noisy], 1);
+                let output = model.forward(frames, inputs.actions, &frame_levels, shape.future);
+                // The mean over the batch: each micro-batch's mean weighted by its share.
+                let loss = (output - wanted)
+                    .abs()
+                    .mean()
+                    .mul_scalar(draws.len() as f64 / batch);
+                let value = scalar(loss.clone());
+                let grads = GradientsParams::from_grads(loss.backward(), model);
+                (value, grads)
+            },
+        )
+        .map_err(|source| TrainError::StepWorker { step, source })?;
+        let loss: f64 = outcomes.iter().map(|(v, _)| v).sum();
+        if !loss.is_finite() {
+            return Err(TrainError::NonFinite {
+                step,
+                what: "loss",
+                value: loss,
+            });
+        }
+        let mut grads = sum_in_order(&self.model, outcomes.into_iter().map(|(_, g)| g));
+        let grad_norm = clip_global_norm(
+            &self.model,
+            &mut grads,
+            self.config.optimizer.grad_clip_norm,
+        );
+        if !grad_norm.is_finite() {
+            return Err(TrainError::NonFinite {
+                step,
+                what: "gradient norm",
+                value: grad_norm,
+            });
+        }
+        let lr = self
+            .config
+            .optimizer
+            .learning_rate(self.step - stage_start, stage.steps);
+        self.model = self.optimizer.step(lr, self.model.clone(), grads);
+        if let (Some(decay), Some(average)) = (self.config.ema_decay, self.weight_average.take()) {
+            self.weight_average = Some(ema::update(average, &self.model, decay, step)?);
+        }
+        self.step = step;
+        Ok(StepReport {
+            step,
+            lr,
+            loss,
+            grad_norm,
+            terms: vec![("stage", (stage_index + 1) as f64)],
+        })
+    }
+
+    /// Scores of `model` on the validation windows: the forecast's standardised L1 per
+    /// horizon, and copy-last's and ego-warp's.
+    pub fn scores(&self, model: &WorldModel) -> Result<HorizonScores, TrainError> {
+        let shape = WindowShape {
+            context: self.model_config.context_frames,
+            future: self.model_config.future_frames,
+            grid: self.grid,
+            residual: self.model_config.residual_over_ego_warp,
+        };
+        let device = self.device.clone().inner();
+        let items: Vec<&WindowValues> = self.data.validation.iter().collect();
+        let (config, schedule, sampler) = (
+            &self.model_config,
+            &self.schedule,
+            &self.config.validation.sampler,
+        );
+        let per_window = parallel_map(
+            &items,
+            self.threads,
+            || model.clone(),
+            |model, window| {
+                let batch = WindowBatch::new(&[*window], &shape, &device);
+                let inputs = ForecastInputs {
+                    context: batch.context,
+                    actions: batch.actions,
+                    base: shape.residual.then_some(batch.warped),
+                };
+                let predicted: Vec<f32> = forecast(model, config, schedule, &inputs, sampler)?
+                    .into_data()
+                    .try_to_vec()
+                    .unwrap_or_default();
+                Ok::<_, TrainError>(HorizonScores::of_window(window, &predicted, &shape))
+            },
+        )
+        .map_err(|source| TrainError::ValidationWorker { source })?
+        .into_iter()
+        .collect::<Result<Vec<_>, _>>()?;
+        Ok(HorizonScores::mean(&per_window))
+    }
+}
+
+/// Mean absolute standardised latent error per future frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct HorizonScores {
+    pub forecast: Vec<f64>,
+    pub copy_last: Vec<f64>,
+    pub ego_warp: Vec<f64>,
+}
+
+fn mean_abs(a: &[f32], b: &[f32]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| f64::from((x - y).abs()))
+        .sum::<f64>()
+        / a.len().max(1) as f64
+}
+
+impl HorizonScores {
+    /// `predicted` is `[future, C, H, W]`, the forecast latents (the base already added).
+    pub fn of_window(window: &WindowValues, predicted: &[f32], shape: &WindowShape) -> Self {
+        let frame = shape.grid.len();
+        let current = &window.context[(shape.context - 1) * frame..shape.context * frame];
+        let mut scores = Self::default();
+        for k in 0..shape.future {
+            let truth = &window.future[k * frame..(k + 1) * frame];
+            scores
+                .forecast
+                .push(mean_abs(&predicted[k * frame..(k + 1) * frame], truth));
+            scores.copy_last.push(mean_abs(current, truth));
+            scores
+                .ego_warp
+                .push(mean_abs(&window.warped[k * frame..(k + 1) * frame], truth));
+        }
+        scores
+    }
+
+    pub fn mean(all: &[Self]) -> Self {
+        let n = all.len().max(1) as f64;
+        let average = |pick: &dyn Fn(&Self) -> &Vec<f64>| -> Vec<f64> {
+            let len = all.first().map_or(0, |s| pick(s).len());
+            (0..len)
+                .map(|k| all.iter().map(|s| pick(s)[k]).sum::<f64>() / n)
+                .collect()
+        };
+        Self {
+            forecast: average(&|s| &s.forecast),
+            copy_last: average(&|s| &s.copy_last),
+            ego_warp: average(&|s| &s.ego_warp),
+        }
+    }
+
+    /// As metrics-log scores, the first `HORIZONS` frames.
+    pub fn as_scores(&self) -> Vec<(&'static str, Option<f64>)> {
+        let mut scores = Vec::new();
+        for (columns, values) in [
+            (FORECAST_COLUMNS, &self.forecast),
+            (COPY_LAST_COLUMNS, &self.copy_last),
+            (EGO_WARP_COLUMNS, &self.ego_warp),
+        ] {
+            for (k, column) in columns.iter().enumerate() {
+                scores.push((*column, values.get(k).copied()));
+            }
+        }
+        scores
+    }
+}
+
+impl Trainee for WorldModelTrainer {
+    type Error = TrainError;
+
+    fn step(&self) -> usize {
+        self.step
+    }
+
+    fn train_step(&mut self) -> Result<StepReport, TrainError> {
+        WorldModelTrainer::train_step(self)
+    }
+
+    fn validate(&mut self) -> Result<Vec<Validation>, TrainError> {
+        let scores = self.scores(&self.shipped_model())?;
+        let as_scores = scores.as_scores();
+        self.last_scores = Some(scores);
+        Ok(vec![Validation {
+            phase: "val",
+            label: if self.weight_average.is_some() {
+                "the weights' moving average"
+            } else {
+                "the last iterate"
+            },
+            frames: self.data.validation.len(),
+            scores: as_scores,
+        }])
+    }
+
+    fn save_checkpoint(&self, run: &Path) -> Result<(), TrainError> {
+        let staged = checkpoint::staging(run, self.step)?;
+        let file = |name: &str| staged.file(name);
+        save_module(&self.model.valid(), "world model", &file(files::MODEL))?;
+        if let Some(average) = &self.weight_average {
+            save_module(average, "world model", &file(files::WEIGHT_AVERAGE))?;
+        }
+        self.optimizer
+            .save(file(files::OPTIMIZER))
+            .map_err(|e| checkpoint::io_error(&file(files::OPTIMIZER), format!("{e:?}")))?;
+        let state = CheckpointState {
+            step: self.step,
+            rng_state: self.rng.state,
+        };
+        checkpoint::commit(run, staged, &state, 2)?;
+        Ok(())
+    }
+}

@@ -1,0 +1,444 @@
+//! Training the world model on small hand-made latent caches: what the cache loader refuses,
+//! gaps split rather than stitched, baselines that are exact where the world stands still,
+//! one step that lowers the loss, a sequence overfit, and runs that resume and split their
+//! work bit for bit.
+
+use std::path::{Path, PathBuf};
+
+use bevworld_sinks::npy::npy_f32;
+use bevworld_types::{LatentStats, Pose};
+use bevworld_world_model::{ActionStats, LatentGrid, WorldModelConfig};
+use bevworld_world_model_train::config::{KEYFRAMES_INDEX, SWEEPS_INDEX};
+use bevworld_world_model_train::{
+    DataError, Expected, HorizonScores, TrainWorldModelConfig, TrainingData, WindowShape,
+    WindowValues, WorldModelTrainer, load_sequences,
+};
+use burn::prelude::*;
+use glam::{DQuat, DVec3};
+
+const C: usize = 4;
+const H: usize = 16;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../..")
+}
+
+/// The tiny model made small enough for many steps in a test.
+fn small_model() -> WorldModelConfig {
+    let mut c =
+        WorldModelConfig::from_yaml_file(&repo().join("configs/models/world-model-tiny.yaml"))
+            .expect("model config");
+    c.latent_size = [H, H];
+    c.width = 32;
+    c.heads = 2;
+    c.depth = 1;
+    c.condition_half = 16;
+    c.context_frames = 2;
+    c.future_frames = 2;
+    c.x_range = [-8.0, 8.0];
+    c.y_range = [-8.0, 8.0];
+    c
+}
+
+fn grid() -> LatentGrid {
+    LatentGrid {
+        channels: C,
+        height: H,
+        width: H,
+        x_range: [-8.0, 8.0],
+        y_range: [-8.0, 8.0],
+    }
+}
+
+/// A world of fixed features seen from an ego at `x` metres along the global x axis: cell
+/// (i, j) at ego point (x_j, y_i) holds a smooth function of the global point.
+fn latent_at(ego_x: f64) -> Vec<f32> {
+    let mut values = Vec::with_capacity(C * H * H);
+    for c in 0..C {
+        for i in 0..H {
+            for j in 0..H {
+                let (x, y) = (ego_x + (j as f64 - 7.5), i as f64 - 7.5);
+                values.push(((x * 0.4 + c as f64).sin() + (y * 0.3).cos()) as f32);
+            }
+        }
+    }
+    values
+}
+
+fn pose(x: f64) -> Pose {
+    Pose::from_rotation_translation(DQuat::IDENTITY, DVec3::new(x, 0.0, 0.0))
+}
+
+fn rows(p: &Pose) -> Vec<[f64; 4]> {
+    let m = glam::DMat4::from(*p);
+    (0..4)
+        .map(|r| [m.col(0)[r], m.col(1)[r], m.col(2)[r], m.col(3)[r]])
+        .collect()
+}
+
+/// One frame of a hand-made cache: scene, time, ego x, and its latent.
+struct Frame {
+    scene: &'static str,
+    time_us: i64,
+    x: f64,
+    latent: Vec<f32>,
+}
+
+fn write_cache(dir: &Path, index: &str, frames: &[Frame], hash: &str) {
+    std::fs::create_dir_all(dir).expect("dir");
+    let mut entries = Vec::new();
+    for (n, f) in frames.iter().enumerate() {
+        let file = format!("{}-{n}.npy", f.scene);
+        let shape = [C, H, H];
+        std::fs::write(dir.join(&file), npy_f32(&shape, &f.latent).expect("npy")).expect("write");
+        entries.push(serde_json::json!({
+            "frame_token": format!("{}-{n}", f.scene),
+            "sample_token": "s",
+            "scene": f.scene,
+            "timestamp_us": f.time_us,
+            "global_from_ego": rows(&pose(f.x)),
+            "file": file,
+            "shape": shape,
+            "model": "tokenizer-test",
+            "weights_hash": hash,
+        }));
+    }
+    let index_json = serde_json::json!({"format": "npy", "frames": entries});
+    std::fs::write(
+        dir.join(index),
+        serde_json::to_vec(&index_json).expect("json"),
+    )
+    .expect("index");
+}
+
+/// A scene driving along x at `speed` m/s, `count` frames `interval_us` apart.
+fn drive(scene: &'static str, count: usize, interval_us: i64, speed: f64) -> Vec<Frame> {
+    (0..count)
+        .map(|k| {
+            let x = speed * k as f64 * interval_us as f64 * 1e-6;
+            Frame {
+                scene,
+                time_us: 1_000_000 + k as i64 * interval_us,
+                x,
+                latent: latent_at(x),
+            }
+        })
+        .collect()
+}
+
+fn expected() -> Expected {
+    Expected {
+        model: "tokenizer-test".into(),
+        weights_hash: "abc".into(),
+        shape: [C, H, H],
+        stats: LatentStats {
+            mean: vec![0.0; C],
+            std: vec![1.0; C],
+            frames: 1,
+        },
+        gap_factor: 1.5,
+    }
+}
+
+#[test]
+fn a_scene_with_a_time_gap_is_split_never_stitched() {
+    let dir = tempfile::tempdir().expect("dir");
+    let mut frames = drive("a", 6, 500_000, 2.0);
+    // Frames 3.. arrive 2 s late: a gap of 2.5 s against the usual 0.5 s.
+    for f in frames.iter_mut().skip(3) {
+        f.time_us += 2_000_000;
+    }
+    frames.extend(drive("b", 4, 500_000, 2.0));
+    write_cache(dir.path(), "index.json", &frames, "abc");
+    let sequences = load_sequences(dir.path(), "index.json", &expected()).expect("load");
+    assert_eq!(sequences.gaps, 1);
+    let lengths: Vec<usize> = sequences.sequences.iter().map(|s| s.frames.len()).collect();
+    assert_eq!(lengths, vec![3, 3, 4]);
+    // No window of 3 frames (with the frame before it) crosses the gap: only scene b has one.
+    assert_eq!(sequences.windows(3), vec![(2, 1)]);
+}
+
+#[test]
+fn bad_caches_are_refused_naming_the_file() {
+    let dir = tempfile::tempdir().expect("dir");
+    let mut frames = drive("a", 4, 500_000, 2.0);
+    frames[2].latent[17] = f32::NAN;
+    write_cache(dir.path(), "index.json", &frames, "abc");
+    match load_sequences(dir.path(), "index.json", &expected()) {
+        Err(error @ DataError::NonFinite { .. }) => {
+            assert!(error.to_string().contains("a-2.npy"), "{error}");
+        }
+        other => panic!("expected a NaN refusal, got {other:?}"),
+    }
+
+    let mut other = expected();
+    other.shape = [C, 32, 32];
+    write_cache(
+        dir.path(),
+        "index.json",
+        &drive("a", 4, 500_000, 2.0),
+        "abc",
+    );
+    let error = load_sequences(dir.path(), "index.json", &other).expect_err("shape");
+    let text = error.to_string();
+    assert!(
+        text.contains("[4, 16, 16]") && text.contains("[4, 32, 32]"),
+        "{text}"
+    );
+
+    write_cache(
+        dir.path(),
+        "index.json",
+        &drive("a", 4, 500_000, 2.0),
+        "fff",
+    );
+    let error = load_sequences(dir.path(), "index.json", &expected()).expect_err("weights");
+    assert!(
+        error.to_string().contains("fff") && error.to_string().contains("abc"),
+        "{error}"
+    );
+
+    let error = load_sequences(dir.path(), "missing.json", &expected()).expect_err("missing");
+    assert!(error.to_string().contains("missing.json"), "{error}");
+}
+
+#[test]
+fn ego_warp_is_exact_where_the_world_stands_still_and_copy_last_is_not() {
+    let dir = tempfile::tempdir().expect("dir");
+    // 1 m a frame: one cell, so the warp moves whole cells and is exact inside the grid.
+    write_cache(
+        dir.path(),
+        "index.json",
+        &drive("a", 8, 500_000, 2.0),
+        "abc",
+    );
+    let sequences = load_sequences(dir.path(), "index.json", &expected()).expect("load");
+    let actions = ActionStats::compute(sequences.actions().iter()).expect("stats");
+    let shape = WindowShape {
+        context: 2,
+        future: 3,
+        grid: grid(),
+        residual: true,
+    };
+    let window = WindowValues::cut(&sequences.sequences[0], 1, &shape, &actions);
+    let plane = H * H;
+    for k in 0..3 {
+        // Horizon k + 1 moved k + 1 cells: the last k + 1 columns come from outside (0).
+        for c in 0..C {
+            for i in 0..H {
+                for j in 0..H - (k + 1) {
+                    let at = k * C * plane + c * plane + i * H + j;
+                    assert!((window.warped[at] - window.future[at]).abs() < 1e-5);
+                }
+            }
+        }
+    }
+    let scores = HorizonScores::of_window(&window, &window.future, &shape);
+    assert!(scores.forecast.iter().all(|v| *v == 0.0));
+    for k in 0..3 {
+        assert!(scores.ego_warp[k] < scores.copy_last[k], "{scores:?}");
+    }
+    // The residual the network samples is zero wherever the warp saw the cell.
+    let residual = window.diffused(true);
+    assert!(residual[..H - 1].iter().all(|v| v.abs() < 1e-5));
+}
+
+fn train_config(dir: &Path) -> TrainWorldModelConfig {
+    let text = std::fs::read_to_string(repo().join("configs/models/train-world-model-tiny.yaml"))
+        .expect("read");
+    let mut config = TrainWorldModelConfig::from_yaml(&text, "train.yaml").expect("config");
+    config.train.latents = dir.join("train");
+    config.val.latents = dir.join("val");
+    config.batch = 4;
+    config.micro_batch = 2;
+    config.optimizer.warmup_steps = 2;
+    config.optimizer.lr = 2e-3;
+    config.stages[0].context = 2;
+    config.stages[0].future = 1;
+    config.stages[0].steps = 3;
+    config.stages[1].context = 2;
+    config.stages[1].future = 2;
+    config.stages[1].steps = 3;
+    config.stages[2].context = 2;
+    config.stages[2].future = 2;
+    config.stages[2].steps = 400;
+    config.validation.windows = 2;
+    config.validation.sampler.steps = 2;
+    config
+}
+
+fn training_data(dir: &Path) -> (TrainingData, ActionStats) {
+    let sweeps = drive("a", 14, 83_333, 6.0);
+    let keyframes = drive("a", 8, 500_000, 2.0);
+    write_cache(&dir.join("train"), SWEEPS_INDEX, &sweeps, "abc");
+    write_cache(&dir.join("train"), KEYFRAMES_INDEX, &keyframes, "abc");
+    let e = expected();
+    let sweeps = load_sequences(&dir.join("train"), SWEEPS_INDEX, &e).expect("sweeps");
+    let keyframes = load_sequences(&dir.join("train"), KEYFRAMES_INDEX, &e).expect("keyframes");
+    let actions = ActionStats::compute(keyframes.actions().iter()).expect("stats");
+    let shape = WindowShape {
+        context: 2,
+        future: 2,
+        grid: grid(),
+        residual: true,
+    };
+    let validation = vec![WindowValues::cut(
+        &keyframes.sequences[0],
+        2,
+        &shape,
+        &actions,
+    )];
+    (
+        TrainingData {
+            sweeps,
+            keyframes,
+            validation,
+        },
+        actions,
+    )
+}
+
+fn trainer(dir: &Path, threads: usize) -> WorldModelTrainer {
+    trainer_of(dir, threads, small_model())
+}
+
+fn trainer_of(dir: &Path, threads: usize, model: WorldModelConfig) -> WorldModelTrainer {
+    let (data, actions) = training_data(dir);
+    WorldModelTrainer::new(
+        train_config(dir),
+        model,
+        actions,
+        data,
+        &Device::flex().autodiff(),
+        threads,
+    )
+    .expect("trainer")
+}
+
+fn parameters(trainer: &WorldModelTrainer) -> Vec<f32> {
+    use burn::module::{Module, ModuleVisitor, Param};
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0
+                .extend(param.val().into_data().try_to_vec::<f32>().expect("f32"));
+        }
+    }
+    let mut collect = Collect(Vec::new());
+    trainer.shipped_model().visit(&mut collect);
+    collect.0
+}
+
+#[test]
+fn the_stages_run_in_order_and_a_short_sequence_is_overfit() {
+    let dir = tempfile::tempdir().expect("dir");
+    // The x0 target on the latents themselves: to lower its loss the model must remember the
+    // sequence's future, whatever the noise drawn (ε and v also carry the noise's share).
+    let mut model = small_model();
+    model.diffusion.target = bevworld_world_model::Target::X0;
+    model.residual_over_ego_warp = false;
+    let mut config = train_config(dir.path());
+    config.batch = 8;
+    config.micro_batch = 4;
+    config.optimizer.lr = 3e-3;
+    let (data, actions) = training_data(dir.path());
+    let mut trainer =
+        WorldModelTrainer::new(config, model, actions, data, &Device::flex().autodiff(), 2)
+            .expect("trainer");
+    let mut losses = Vec::new();
+    for _ in 0..46 {
+        let report = trainer.train_step().expect("step");
+        assert!(report.loss.is_finite() && report.grad_norm.is_finite());
+        losses.push((report.term("stage").expect("stage"), report.loss));
+    }
+    let stages: Vec<f64> = losses.iter().map(|(s, _)| *s).collect();
+    assert_eq!(&stages[..3], &[1.0; 3]);
+    assert_eq!(&stages[3..6], &[2.0; 3]);
+    assert!(stages[6..].iter().all(|s| *s == 3.0));
+    // Stage 3 sees the four windows of one short sequence: a few dozen steps bring its loss
+    // well down.
+    let first: f64 = losses[6..11].iter().map(|(_, l)| l).sum::<f64>() / 5.0;
+    let last: f64 = losses[41..].iter().map(|(_, l)| l).sum::<f64>() / 5.0;
+    assert!(last < 0.5 * first, "stage-3 loss {first:.4} -> {last:.4}");
+}
+
+#[test]
+fn a_step_splits_over_threads_without_changing_a_bit() {
+    let dir = tempfile::tempdir().expect("dir");
+    let mut one = trainer(dir.path(), 1);
+    let mut two = trainer(dir.path(), 2);
+    for _ in 0..3 {
+        let (a, b) = (
+            one.train_step().expect("one"),
+            two.train_step().expect("two"),
+        );
+        assert_eq!(a.loss.to_bits(), b.loss.to_bits());
+    }
+    assert_eq!(parameters(&one), parameters(&two));
+}
+
+#[test]
+fn a_resumed_run_continues_bit_for_bit() {
+    use bevworld_training::Trainee;
+    let dir = tempfile::tempdir().expect("dir");
+    let run = dir.path().join("run");
+    let mut straight = trainer(dir.path(), 2);
+    for _ in 0..4 {
+        straight.train_step().expect("step");
+    }
+    let mut first = trainer(dir.path(), 2);
+    for _ in 0..2 {
+        first.train_step().expect("step");
+    }
+    first.save_checkpoint(&run).expect("checkpoint");
+    drop(first);
+    let mut resumed = trainer(dir.path(), 2).resume(&run).expect("resume");
+    assert_eq!(resumed.step(), 2);
+    for _ in 0..2 {
+        resumed.train_step().expect("step");
+    }
+    assert_eq!(parameters(&straight), parameters(&resumed));
+}
+
+#[test]
+fn one_step_lowers_the_loss_on_a_fixed_batch() {
+    use bevworld_blocks::init::random_normal;
+    use bevworld_blocks::seeded_init;
+    use bevworld_world_model::NoiseSchedule;
+    use bevworld_world_model::ddim::noisy_and_target;
+    use burn::optim::GradientsParams;
+    let dir = tempfile::tempdir().expect("dir");
+    let config = train_config(dir.path());
+    let model_config = small_model();
+    let device = Device::flex().autodiff();
+    let schedule = NoiseSchedule::new(&model_config.diffusion);
+    let mut model = seeded_init(1, &device, |d| model_config.init(d));
+    let context = random_normal(2, [2, 2, C, H, H], 0.0, 1.0, &device);
+    let future = random_normal(3, [2, 2, C, H, H], 0.0, 0.5, &device);
+    let noise = random_normal(4, [2, 2, C, H, H], 0.0, 1.0, &device);
+    let actions = random_normal(5, [2, 4, 5], 0.0, 1.0, &device);
+    let (noisy, wanted) = noisy_and_target(
+        &schedule,
+        model_config.diffusion.target,
+        future,
+        noise,
+        &[300, 700],
+    );
+    let levels = [0.0, 0.0, 300.0, 300.0, 0.0, 0.0, 700.0, 700.0];
+    let loss = |model: &bevworld_world_model::WorldModel| {
+        let frames = Tensor::cat(vec![context.clone(), noisy.clone()], 1);
+        (model.forward(frames, actions.clone(), &levels, 2) - wanted.clone())
+            .abs()
+            .mean()
+    };
+    let mut optimizer = config.optimizer.adamw();
+    let before = loss(&model);
+    let value_before = f64::from(before.clone().into_scalar::<f32>());
+    let grads = GradientsParams::from_grads(before.backward(), &model);
+    model = optimizer.step(1e-3, model, grads);
+    let value_after = f64::from(loss(&model).into_scalar::<f32>());
+    assert!(
+        value_after < value_before,
+        "{value_before} -> {value_after}"
+    );
+}
