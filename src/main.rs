@@ -85,7 +85,7 @@ enum Command {
     /// Evaluate: Chamfer distance between clouds, forecasting baselines.
     #[command(subcommand)]
     Eval(commands::eval::EvalCommand),
-    /// Train a model (the tokenizer).
+    /// Train a model: the tokenizer or the world model.
     #[command(subcommand)]
     Train(commands::train::TrainCommand),
     /// Tokenizer tools: latent statistics.

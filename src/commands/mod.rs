@@ -2,6 +2,7 @@
 
 pub mod eval;
 pub mod inspect;
+pub mod latent_cache;
 pub mod synth;
 pub mod tokenizer;
 pub mod train;

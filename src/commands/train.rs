@@ -15,7 +15,39 @@ use clap::{Args, Subcommand};
 #[derive(Subcommand)]
 pub enum TrainCommand {
     /// Train the BEV tokenizer.
-    Tokenizer(TrainTokenizerArgs),
+    Tokenizer(Box<TrainTokenizerArgs>),
+    /// Train the world model (latent BEV sequence diffusion) on the tokenizer's latents of
+    /// synthetic scenes: the paper's three stages in one run. The latent caches are exported
+    /// first if missing.
+    WorldModel(TrainWorldModelArgs),
+}
+
+#[derive(Args)]
+pub struct TrainWorldModelArgs {
+    /// Training config.
+    #[arg(long, default_value = "configs/models/train-world-model-tiny.yaml")]
+    pub config: PathBuf,
+    /// Run folder: checkpoints, metrics.csv, curves.png, the configs used, and the weights
+    /// (`<model>.bpk` with `<model>.meta.json`) at the end.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue from the run folder's newest checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    /// Stop after this step (counted over all stages), keeping the config's stages and
+    /// schedules; `--resume` continues it.
+    #[arg(long, value_name = "STEP")]
+    pub until: Option<usize>,
+    /// Export the latent caches and stop.
+    #[arg(long)]
+    pub prepare_only: bool,
+    /// Worker threads for a step's micro-batches and for validation (default: the available
+    /// cores). The run's results do not depend on it.
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+    /// Log a training row to metrics.csv every N steps.
+    #[arg(long, default_value_t = 10)]
+    pub log_every: usize,
 }
 
 #[derive(Args)]
@@ -132,6 +164,7 @@ const FLAG_OF_FIELD: [(&str, &str); 9] = [
 pub fn run(command: &TrainCommand) -> Result<ExitCode> {
     match command {
         TrainCommand::Tokenizer(args) => tokenizer(args),
+        TrainCommand::WorldModel(args) => world_model(args),
     }
 }
 
@@ -222,6 +255,113 @@ fn tokenizer(args: &TrainTokenizerArgs) -> Result<ExitCode> {
         eprintln!("target missed: {line}");
     }
     Ok(ExitCode::FAILURE)
+}
+
+fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
+    use bevworld_world_model_train as wm;
+    let config = wm::TrainWorldModelConfig::from_yaml_file(&args.config)?;
+    if args.until == Some(0) {
+        bail!("--until 0: a run of no steps would ship untrained weights");
+    }
+    for cache in [&config.train, &config.val] {
+        super::latent_cache::ensure(cache, &config.tokenizer_model, &config.tokenizer_weights)?;
+    }
+    if args.prepare_only {
+        println!(
+            "latent caches ready: {} and {}",
+            config.train.latents.display(),
+            config.val.latents.display()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
+    let request = wm::TrainRequest {
+        config: args.config.clone(),
+        out: args.out.clone(),
+        resume: args.resume,
+        until: args.until,
+        threads: args.threads,
+        log_every: args.log_every,
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let (_, device) = bevworld_device::from_env()?;
+    let mut bar = WorldModelBar::default();
+    let summary = match wm::train(&request, &device, &mut bar) {
+        Ok(summary) => summary,
+        Err(error) => {
+            bar.0.abandon();
+            return Err(error.into());
+        }
+    };
+    bar.0.finish();
+    println!(
+        "{} steps in {:.1} min; weights {}; log {}; curves {}",
+        summary.steps,
+        summary.minutes,
+        summary.weights.display(),
+        summary.log.display(),
+        summary.curves.display()
+    );
+    println!("{}", horizon_table(&summary.scores));
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The standardised latent L1 per horizon of the forecast and the two baselines.
+fn horizon_table(scores: &bevworld_world_model_train::HorizonScores) -> String {
+    let row = |name: &str, values: &[f64]| {
+        let cells: Vec<String> = values.iter().map(|v| format!("{v:.4}")).collect();
+        format!("| {name} | {} |", cells.join(" | "))
+    };
+    let horizons: Vec<String> = (1..=scores.forecast.len())
+        .map(|k| format!("+{:.1} s", 0.5 * k as f64))
+        .collect();
+    [
+        format!("| latent L1 (standardised) | {} |", horizons.join(" | ")),
+        format!("|---|{}", "---|".repeat(horizons.len())),
+        row("world model", &scores.forecast),
+        row("ego-warp", &scores.ego_warp),
+        row("copy-last", &scores.copy_last),
+    ]
+    .join("\n")
+}
+
+/// A world-model run on the terminal: a bar of steps with the loss, a line per validation.
+#[derive(Default)]
+struct WorldModelBar(Bar);
+
+impl Observer for WorldModelBar {
+    fn stepped(&mut self, report: &StepReport) {
+        let bar = self.0.shown();
+        bar.set_position(report.step as u64);
+        bar.set_message(format!(
+            "stage {} loss {:.4}",
+            report.term("stage").unwrap_or(0.0),
+            report.loss
+        ));
+    }
+
+    fn validated(&mut self, step: usize, validation: &Validation) {
+        let line = format!(
+            "step {step}: {}: latent L1 at 1 s {} (ego-warp {}), at 3 s {} (ego-warp {}, copy-last {})",
+            validation.label,
+            shown(validation.score("l1_1.0s"), 4),
+            shown(validation.score("ego_warp_1.0s"), 4),
+            shown(validation.score("l1_3.0s"), 4),
+            shown(validation.score("ego_warp_3.0s"), 4),
+            shown(validation.score("copy_last_3.0s"), 4),
+        );
+        tracing::info!(step, "{line}");
+        self.0.shown().println(line);
+    }
+}
+
+impl bevworld_world_model_train::Progress for WorldModelBar {
+    fn prepared(&mut self, message: &str) {
+        Progress::prepared(&mut self.0, message);
+    }
+
+    fn started(&mut self, step: usize, stop: usize, resumed: bool) {
+        Progress::started(&mut self.0, step, stop, resumed);
+    }
 }
 
 /// The run's progress on the terminal: the data loading, then a bar of steps with the step's
