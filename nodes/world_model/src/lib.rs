@@ -17,8 +17,10 @@ pub mod config;
 pub mod ddim;
 pub mod ego_warp;
 pub mod forecast;
+pub mod manoeuvre;
 pub mod model;
 pub mod patch;
+pub mod rollout;
 pub mod schedule;
 pub mod weights;
 
@@ -27,7 +29,9 @@ pub use config::{DiffusionConfig, ScheduleKind, Target, WorldModelConfig};
 pub use ddim::{DdimConfig, Spacing};
 pub use ego_warp::{LatentGrid, PlanarMotion, warp_latent};
 pub use forecast::{ForecastInputs, forecast};
+pub use manoeuvre::Manoeuvre;
 pub use model::WorldModel;
+pub use rollout::{Rollout, RolloutError, RolloutOutput};
 pub use schedule::NoiseSchedule;
 pub use weights::{
     WeightsMeta, WorldModelWeights, WorldModelWeightsError, load_weights, save_weights,

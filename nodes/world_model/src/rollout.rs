@@ -1,0 +1,149 @@
+//! A forecast from raw latents and ego actions: what a graph node or a tool calls. The
+//! context is standardised with the tokenizer's statistics and the actions normalised with the
+//! model's; the future frames are sampled (residual models add the context's ego-warped
+//! current latent) and de-standardised.
+
+use bevworld_types::{EgoAction, LatentStats};
+use burn::prelude::*;
+
+use crate::actions::{ACTION_FEATURES, ActionStats};
+use crate::config::WorldModelConfig;
+use crate::ddim::{DdimConfig, DdimError};
+use crate::ego_warp::{LatentGrid, PlanarMotion, warp_latent};
+use crate::forecast::{ForecastInputs, forecast};
+use crate::model::WorldModel;
+use crate::schedule::NoiseSchedule;
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum RolloutError {
+    #[error("a forecast needs {expected} context latents, got {found}")]
+    ContextFrames { expected: usize, found: usize },
+    #[error("a forecast needs {expected} future actions, got {found}")]
+    FutureActions { expected: usize, found: usize },
+    #[error("context latent {index} has {found} values, the model's latent {expected}")]
+    Shape {
+        index: usize,
+        found: usize,
+        expected: usize,
+    },
+    #[error("context latent {index} holds a non-finite value")]
+    NonFinite { index: usize },
+    #[error(transparent)]
+    Sampler(#[from] DdimError),
+}
+
+/// The future latents of a forecast and the ego-warp baseline for the same future, both in
+/// the tokenizer's scale, `[C', H, W]` per future frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RolloutOutput {
+    pub future: Vec<Vec<f32>>,
+    /// The current latent moved into each future ego frame by the future actions (for a
+    /// residual model, what its sampled residual was added to).
+    pub ego_warped: Vec<Vec<f32>>,
+}
+
+/// A model ready to forecast.
+pub struct Rollout<'a> {
+    pub model: &'a WorldModel,
+    pub config: &'a WorldModelConfig,
+    pub action_stats: &'a ActionStats,
+    pub latent_stats: &'a LatentStats,
+    pub device: Device,
+}
+
+impl Rollout<'_> {
+    fn grid(&self) -> LatentGrid {
+        LatentGrid {
+            channels: self.config.latent_channels,
+            height: self.config.latent_size[0],
+            width: self.config.latent_size[1],
+            x_range: self.config.x_range,
+            y_range: self.config.y_range,
+        }
+    }
+
+    /// The N future latents (and the ego-warp baseline), given the context latents oldest
+    /// first, the action into each context frame, and the action into each future frame.
+    pub fn run(
+        &self,
+        context: &[Vec<f32>],
+        context_actions: &[EgoAction],
+        future_actions: &[EgoAction],
+        sampler: &DdimConfig,
+    ) -> Result<RolloutOutput, RolloutError> {
+        let (p, n) = (self.config.context_frames, self.config.future_frames);
+        if context.len() != p || context_actions.len() != p {
+            return Err(RolloutError::ContextFrames {
+                expected: p,
+                found: context.len().min(context_actions.len()),
+            });
+        }
+        if future_actions.len() != n {
+            return Err(RolloutError::FutureActions {
+                expected: n,
+                found: future_actions.len(),
+            });
+        }
+        let grid = self.grid();
+        let mut standardised = Vec::with_capacity(p * grid.len());
+        for (index, latent) in context.iter().enumerate() {
+            if latent.len() != grid.len() {
+                return Err(RolloutError::Shape {
+                    index,
+                    found: latent.len(),
+                    expected: grid.len(),
+                });
+            }
+            if latent.iter().any(|v| !v.is_finite()) {
+                return Err(RolloutError::NonFinite { index });
+            }
+            let mut values = latent.clone();
+            self.latent_stats.standardize(&mut values);
+            standardised.extend(values);
+        }
+        let current = standardised[(p - 1) * grid.len()..].to_vec();
+        let mut base = Vec::with_capacity(n * grid.len());
+        let mut current_from_future = PlanarMotion::default();
+        for action in future_actions {
+            current_from_future = current_from_future.then(&PlanarMotion::of_action(action));
+            base.extend(warp_latent(&current, &grid, &current_from_future, 0.0));
+        }
+        let actions: Vec<f32> = context_actions
+            .iter()
+            .chain(future_actions)
+            .flat_map(|a| self.action_stats.normalise(a))
+            .collect();
+        let shape = |frames: usize| [1, frames, grid.channels, grid.height, grid.width];
+        let destandardised = |values: &[f32]| -> Vec<Vec<f32>> {
+            values
+                .chunks(grid.len())
+                .map(|frame| {
+                    let mut frame = frame.to_vec();
+                    self.latent_stats.destandardize(&mut frame);
+                    frame
+                })
+                .collect()
+        };
+        let ego_warped = destandardised(&base);
+        let inputs = ForecastInputs {
+            context: Tensor::from_data(TensorData::new(standardised, shape(p)), &self.device),
+            actions: Tensor::from_data(
+                TensorData::new(actions, [1, p + n, ACTION_FEATURES]),
+                &self.device,
+            ),
+            base: self
+                .config
+                .residual_over_ego_warp
+                .then(|| Tensor::from_data(TensorData::new(base, shape(n)), &self.device)),
+        };
+        let schedule = NoiseSchedule::new(&self.config.diffusion);
+        let values: Vec<f32> = forecast(self.model, self.config, &schedule, &inputs, sampler)?
+            .into_data()
+            .try_to_vec()
+            .unwrap_or_default();
+        Ok(RolloutOutput {
+            future: destandardised(&values),
+            ego_warped,
+        })
+    }
+}
