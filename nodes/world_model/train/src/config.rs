@@ -66,6 +66,10 @@ pub struct TrainWorldModelConfig {
     pub tokenizer_weights: PathBuf,
     pub train: CacheConfig,
     pub val: CacheConfig,
+    /// The held-out test scenes, touched only for a reported figure
+    /// (`bevworld eval world-model --split test`).
+    #[serde(default)]
+    pub test: Option<CacheConfig>,
     pub seed: u64,
     /// Windows per optimiser step.
     pub batch: usize,

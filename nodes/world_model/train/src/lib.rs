@@ -8,12 +8,14 @@
 
 pub mod config;
 pub mod data;
+pub mod evaluate;
 pub mod run;
 pub mod trainer;
 pub mod window;
 
 pub use config::{CacheConfig, Rate, StageConfig, TrainWorldModelConfig};
 pub use data::{DataError, Expected, LatentSequences, load_sequences};
+pub use evaluate::{Evaluation, evaluate};
 pub use run::{Progress, RunError, TrainRequest, TrainSummary, cache_is_complete, train};
 pub use trainer::{HorizonScores, TrainError, TrainingData, WorldModelTrainer};
 pub use window::{WindowBatch, WindowShape, WindowValues};

@@ -19,7 +19,8 @@ use bevworld_training::{
 };
 use bevworld_world_model::ddim::noisy_and_target;
 use bevworld_world_model::{
-    ActionStats, ForecastInputs, LatentGrid, NoiseSchedule, WorldModel, WorldModelConfig, forecast,
+    ActionStats, DdimConfig, ForecastInputs, LatentGrid, NoiseSchedule, WorldModel,
+    WorldModelConfig, forecast,
 };
 use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};
@@ -415,42 +416,63 @@ impl WorldModelTrainer {
     /// Scores of `model` on the validation windows: the forecast's standardised L1 per
     /// horizon, and copy-last's and ego-warp's.
     pub fn scores(&self, model: &WorldModel) -> Result<HorizonScores, TrainError> {
-        let shape = WindowShape {
-            context: self.model_config.context_frames,
-            future: self.model_config.future_frames,
-            grid: self.grid,
-            residual: self.model_config.residual_over_ego_warp,
-        };
-        let device = self.device.clone().inner();
         let items: Vec<&WindowValues> = self.data.validation.iter().collect();
-        let (config, schedule, sampler) = (
+        let per_window = score_windows(
+            model,
             &self.model_config,
-            &self.schedule,
-            &self.config.validation.sampler,
-        );
-        let per_window = parallel_map(
             &items,
+            &self.config.validation.sampler,
             self.threads,
-            || model.clone(),
-            |model, window| {
-                let batch = WindowBatch::new(&[*window], &shape, &device);
-                let inputs = ForecastInputs {
-                    context: batch.context,
-                    actions: batch.actions,
-                    base: shape.residual.then_some(batch.warped),
-                };
-                let predicted: Vec<f32> = forecast(model, config, schedule, &inputs, sampler)?
-                    .into_data()
-                    .try_to_vec()
-                    .unwrap_or_default();
-                Ok::<_, TrainError>(HorizonScores::of_window(window, &predicted, &shape))
-            },
-        )
-        .map_err(|source| TrainError::ValidationWorker { source })?
-        .into_iter()
-        .collect::<Result<Vec<_>, _>>()?;
+            &self.device.clone().inner(),
+        )?;
         Ok(HorizonScores::mean(&per_window))
     }
+}
+
+/// Forecasts each window with `model` (DDIM with `sampler`) and scores it, on up to
+/// `threads` threads; the scores come back in window order.
+pub fn score_windows(
+    model: &WorldModel,
+    config: &WorldModelConfig,
+    windows: &[&WindowValues],
+    sampler: &DdimConfig,
+    threads: usize,
+    device: &Device,
+) -> Result<Vec<HorizonScores>, TrainError> {
+    let shape = WindowShape {
+        context: config.context_frames,
+        future: config.future_frames,
+        grid: LatentGrid {
+            channels: config.latent_channels,
+            height: config.latent_size[0],
+            width: config.latent_size[1],
+            x_range: config.x_range,
+            y_range: config.y_range,
+        },
+        residual: config.residual_over_ego_warp,
+    };
+    let schedule = NoiseSchedule::new(&config.diffusion);
+    parallel_map(
+        windows,
+        threads,
+        || model.clone(),
+        |model, window| {
+            let batch = WindowBatch::new(&[*window], &shape, device);
+            let inputs = ForecastInputs {
+                context: batch.context,
+                actions: batch.actions,
+                base: shape.residual.then_some(batch.warped),
+            };
+            let predicted: Vec<f32> = forecast(model, config, &schedule, &inputs, sampler)?
+                .into_data()
+                .try_to_vec()
+                .unwrap_or_default();
+            Ok::<_, TrainError>(HorizonScores::of_window(window, &predicted, &shape))
+        },
+    )
+    .map_err(|source| TrainError::ValidationWorker { source })?
+    .into_iter()
+    .collect()
 }
 
 /// Mean absolute standardised latent error per future frame.
@@ -500,6 +522,26 @@ impl HorizonScores {
             forecast: average(&|s| &s.forecast),
             copy_last: average(&|s| &s.copy_last),
             ego_warp: average(&|s| &s.ego_warp),
+        }
+    }
+
+    /// The population standard deviation of each figure over `all`.
+    pub fn spread(all: &[Self]) -> Self {
+        let mean = Self::mean(all);
+        let n = all.len().max(1) as f64;
+        let deviation = |pick: &dyn Fn(&Self) -> &Vec<f64>| -> Vec<f64> {
+            pick(&mean)
+                .iter()
+                .enumerate()
+                .map(|(k, m)| {
+                    (all.iter().map(|s| (pick(s)[k] - m).powi(2)).sum::<f64>() / n).sqrt()
+                })
+                .collect()
+        };
+        Self {
+            forecast: deviation(&|s| &s.forecast),
+            copy_last: deviation(&|s| &s.copy_last),
+            ego_warp: deviation(&|s| &s.ego_warp),
         }
     }
 
