@@ -40,6 +40,10 @@ pub struct WorldModelEvalArgs {
     pub config: PathBuf,
     #[arg(long, default_value = "nodes/world_model/weights/world-model-tiny.bpk")]
     pub weights: PathBuf,
+    /// The model config of the weights (default: the training config's `model`); an
+    /// ablation run's own is RUN/model-config.yaml.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
     #[arg(long, value_enum, default_value = "val")]
     pub split: Split,
     /// DDIM steps (default: the config's validation sampler's).
@@ -373,8 +377,12 @@ fn world_model(args: &WorldModelEvalArgs) -> Result<ExitCode> {
     sampler.seed = args.seed;
     let (_, device) = bevworld_device::from_env()?;
     let threads = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    let model_config = bevworld_world_model::WorldModelConfig::from_yaml_file(
+        args.model.as_ref().unwrap_or(&config.model),
+    )?;
     let evaluation = evaluate(
         &config,
+        &model_config,
         &args.weights,
         &cache,
         &sampler,

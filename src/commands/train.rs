@@ -48,6 +48,21 @@ pub struct TrainWorldModelArgs {
     /// Log a training row to metrics.csv every N steps.
     #[arg(long, default_value_t = 10)]
     pub log_every: usize,
+    /// Ablation: the diffusion target, overriding the model config's (`epsilon` also turns
+    /// zero terminal SNR off, under which it cannot be sampled).
+    #[arg(long, value_name = "epsilon|v|x0")]
+    pub target: Option<String>,
+    /// Ablation: diffuse the residual over the ego-warped current latent (true) or the latent
+    /// itself (false), overriding the model config's `residual_over_ego_warp`.
+    #[arg(long, value_name = "true|false")]
+    pub residual: Option<bool>,
+    /// Ablation: keep only these stages, numbered from 1 (e.g. 3: the long-sequence stage
+    /// alone).
+    #[arg(long, value_delimiter = ',', value_name = "N,..")]
+    pub stages: Option<Vec<usize>>,
+    /// Ablation: the steps of each kept stage.
+    #[arg(long, value_delimiter = ',', value_name = "STEPS,..")]
+    pub stage_steps: Option<Vec<usize>>,
 }
 
 #[derive(Args)]
@@ -282,6 +297,21 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
         threads: args.threads,
         log_every: args.log_every,
         command: std::env::args().collect::<Vec<_>>().join(" "),
+        overrides: wm::Overrides {
+            target: args
+                .target
+                .as_deref()
+                .map(|t| match t {
+                    "epsilon" => Ok(bevworld_world_model::Target::Epsilon),
+                    "v" => Ok(bevworld_world_model::Target::V),
+                    "x0" => Ok(bevworld_world_model::Target::X0),
+                    other => Err(anyhow!("--target: '{other}' is not epsilon, v or x0")),
+                })
+                .transpose()?,
+            residual_over_ego_warp: args.residual,
+            stages: args.stages.clone(),
+            stage_steps: args.stage_steps.clone(),
+        },
     };
     let (_, device) = bevworld_device::from_env()?;
     let mut bar = WorldModelBar::default();

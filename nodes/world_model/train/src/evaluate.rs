@@ -26,10 +26,12 @@ pub struct Evaluation {
     pub windows: usize,
 }
 
-/// Scores the weights at `weights` (trained with the run config `config`) on `cache`'s
-/// keyframe windows; `stride` keeps every n-th window of a scene.
+/// Scores the weights at `weights` (the model `model_config`, trained with the run config
+/// `config`) on `cache`'s keyframe windows; `stride` keeps every n-th window of a scene.
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate(
     config: &TrainWorldModelConfig,
+    model_config: &WorldModelConfig,
     weights: &Path,
     cache: &CacheConfig,
     sampler: &DdimConfig,
@@ -37,10 +39,9 @@ pub fn evaluate(
     threads: usize,
     device: &Device,
 ) -> Result<Evaluation, RunError> {
-    let model_config = WorldModelConfig::from_yaml_file(&config.model)?;
     let tokenizer = tokenizer_identity(&config.tokenizer_weights)?;
     let loaded = load_weights(
-        &model_config,
+        model_config,
         weights,
         Some((&tokenizer.model, &tokenizer.weights_hash)),
         device,
@@ -85,7 +86,7 @@ pub fn evaluate(
     let items: Vec<&WindowValues> = windows.iter().collect();
     let scores = score_windows(
         &loaded.model,
-        &model_config,
+        model_config,
         &items,
         sampler,
         threads,

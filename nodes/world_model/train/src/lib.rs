@@ -16,6 +16,9 @@ pub mod window;
 pub use config::{CacheConfig, Rate, StageConfig, TrainWorldModelConfig};
 pub use data::{DataError, Expected, LatentSequences, load_sequences};
 pub use evaluate::{Evaluation, evaluate};
-pub use run::{Progress, RunError, TrainRequest, TrainSummary, cache_is_complete, train};
+pub use run::{
+    Overrides, Progress, RunError, TrainRequest, TrainSummary, cache_is_complete,
+    effective_configs, train,
+};
 pub use trainer::{HorizonScores, TrainError, TrainingData, WorldModelTrainer};
 pub use window::{WindowBatch, WindowShape, WindowValues};

@@ -15,7 +15,7 @@ use bevworld_training::{LoopPlan, MetricsLog, Observer, Trainee, plot_curves, ru
 use bevworld_types::{LatentStatsFile, StatsFileError, stats_path_for};
 use bevworld_world_model::config::ConfigError as ModelConfigError;
 use bevworld_world_model::weights::{WorldModelWeightsError, save_weights};
-use bevworld_world_model::{ActionStats, LatentGrid, WeightsMeta, WorldModelConfig};
+use bevworld_world_model::{ActionStats, LatentGrid, Target, WeightsMeta, WorldModelConfig};
 use burn::prelude::*;
 
 use crate::config::{
@@ -38,6 +38,84 @@ pub struct TrainRequest {
     pub log_every: usize,
     /// The command line, recorded in the weights' metadata.
     pub command: String,
+    pub overrides: Overrides,
+}
+
+/// What an ablation changes in the configs. The effective configs are written into the run
+/// folder, so `eval world-model --model RUN/model-config.yaml` reads the weights back.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Overrides {
+    /// The diffusion target; `epsilon` also turns zero terminal SNR off, under which it cannot
+    /// be sampled.
+    pub target: Option<Target>,
+    pub residual_over_ego_warp: Option<bool>,
+    /// The stages kept, numbered from 1 (e.g. `[3]`: the long-sequence stage alone).
+    pub stages: Option<Vec<usize>>,
+    /// Steps of each kept stage.
+    pub stage_steps: Option<Vec<usize>>,
+}
+
+/// The configs as this run trains them: the files', then the overrides, checked again.
+pub fn effective_configs(
+    request: &TrainRequest,
+) -> Result<(TrainWorldModelConfig, WorldModelConfig), RunError> {
+    let mut config = TrainWorldModelConfig::from_yaml_file(&request.config)?;
+    let mut model = WorldModelConfig::from_yaml_file(&config.model)?;
+    let set = &request.overrides;
+    if let Some(target) = set.target {
+        model.diffusion.target = target;
+        if target == Target::Epsilon {
+            model.diffusion.zero_terminal_snr = false;
+        }
+    }
+    if let Some(residual) = set.residual_over_ego_warp {
+        model.residual_over_ego_warp = residual;
+    }
+    if let Some(kept) = &set.stages {
+        let mut stages = Vec::new();
+        for &number in kept {
+            let stage = number
+                .checked_sub(1)
+                .and_then(|i| config.stages.get(i))
+                .ok_or_else(|| RunError::Override {
+                    flag: "--stages",
+                    message: format!(
+                        "stage {number} does not exist (the config has {})",
+                        config.stages.len()
+                    ),
+                })?;
+            stages.push(stage.clone());
+        }
+        config.stages = stages;
+    }
+    if let Some(steps) = &set.stage_steps {
+        if steps.len() != config.stages.len() {
+            return Err(RunError::Override {
+                flag: "--stage-steps",
+                message: format!(
+                    "{} step counts for {} stages",
+                    steps.len(),
+                    config.stages.len()
+                ),
+            });
+        }
+        for (stage, &n) in config.stages.iter_mut().zip(steps) {
+            stage.steps = n;
+        }
+    }
+    let problems: Vec<String> = config
+        .problems()
+        .iter()
+        .chain(&model.problems())
+        .map(ToString::to_string)
+        .collect();
+    if !problems.is_empty() {
+        return Err(RunError::Override {
+            flag: "the overrides",
+            message: problems.join("; "),
+        });
+    }
+    Ok((config, model))
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -68,6 +146,8 @@ pub enum RunError {
     Curves(#[from] CurvesError),
     #[error("--until 0: a run of no steps would ship untrained weights")]
     NoSteps,
+    #[error("{flag}: {message}")]
+    Override { flag: &'static str, message: String },
     #[error("{path}: {source}")]
     Io {
         path: PathBuf,
@@ -157,8 +237,7 @@ pub fn train(
     device: &Device,
     progress: &mut dyn Progress,
 ) -> Result<TrainSummary, RunError> {
-    let config = TrainWorldModelConfig::from_yaml_file(&request.config)?;
-    let model_config = WorldModelConfig::from_yaml_file(&config.model)?;
+    let (config, model_config) = effective_configs(request)?;
     if request.until == Some(0) {
         return Err(RunError::NoSteps);
     }
@@ -221,13 +300,23 @@ pub fn train(
     ));
 
     std::fs::create_dir_all(&request.out).map_err(io(&request.out))?;
-    for (source, name) in [
-        (&request.config, "train-config.yaml"),
-        (&config.model, "model-config.yaml"),
-    ] {
+    // The configs as trained, overrides applied, for `eval world-model --model`.
+    let written = |name: &str, text: Result<String, String>| -> Result<(), RunError> {
         let target = request.out.join(name);
-        std::fs::copy(source, &target).map_err(io(&target))?;
-    }
+        let text = text.map_err(|message| RunError::Override {
+            flag: "the overrides",
+            message,
+        })?;
+        std::fs::write(&target, text).map_err(io(&target))
+    };
+    written(
+        "train-config.yaml",
+        serde_saphyr::to_string(&config).map_err(|e| e.to_string()),
+    )?;
+    written(
+        "model-config.yaml",
+        serde_saphyr::to_string(&model_config).map_err(|e| e.to_string()),
+    )?;
     let threads = request
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
