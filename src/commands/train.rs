@@ -296,7 +296,11 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
         until: args.until,
         threads: args.threads,
         log_every: args.log_every,
-        command: std::env::args().collect::<Vec<_>>().join(" "),
+        // The command as a user types it, without the binary's path.
+        command: std::iter::once("bevworld".to_string())
+            .chain(std::env::args().skip(1))
+            .collect::<Vec<_>>()
+            .join(" "),
         overrides: wm::Overrides {
             target: args
                 .target

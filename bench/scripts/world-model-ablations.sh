@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# The world model's ablations, as short runs from the committed tiny configs (results in
+# bench/results/world-model-training.md). Each writes runs/ablation-<name>/ and prints its
+# final validation table; the validation-set scores below are then re-measured at 1, 4 and 50
+# DDIM steps with `bevworld eval world-model`.
+#   bench/scripts/world-model-ablations.sh [BEVWORLD_BINARY]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+BIN="${1:-cargo run --release --}"
+run() {
+    local name=$1
+    shift
+    rm -rf "runs/ablation-$name"
+    $BIN train world-model --out "runs/ablation-$name" "$@" | tail -6
+}
+# Stage 3 alone, 250 steps: the v target over the ego-warp residual (shipped), the paper's
+# epsilon target, and v on the latent itself.
+run v-residual --stages 3 --stage-steps 250
+run epsilon-residual --stages 3 --stage-steps 250 --target epsilon
+run v-latent --stages 3 --stage-steps 250 --residual false
+# All three stages against stage 3 alone, at about the same time (the three-stage split
+# costs what 250 stage-3 steps do).
+run three-stages --stage-steps 100,80,150
+for name in v-residual epsilon-residual v-latent three-stages; do
+    for steps in 1 4 50; do
+        echo "== $name, DDIM $steps steps"
+        $BIN eval world-model --weights "runs/ablation-$name/world-model-tiny.bpk" \
+            --model "runs/ablation-$name/model-config.yaml" --steps "$steps" --stride 4
+    done
+done
