@@ -616,3 +616,27 @@ fn the_lidar_l1_weight_is_checked_recorded_and_weighs_the_loss() {
         );
     }
 }
+
+#[test]
+fn runs_of_no_steps_are_refused_before_anything_is_written() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = dir.path().join("run");
+    // The data need not exist: the refusal comes first.
+    let (data, val) = (dir.path().join("none"), dir.path().join("none-val"));
+    let until_zero = bevworld_owned(&train_args(&run, &data, &val, "5", &["--until", "0"]));
+    assert_refused_before_writing(&until_zero, &run, "--until 0");
+    let steps_zero = bevworld_owned(&train_args(&run, &data, &val, "0", &[]));
+    assert_refused_before_writing(&steps_zero, &run, "steps");
+    let world_model = bevworld_owned(
+        &[
+            "train",
+            "world-model",
+            "--out",
+            run.to_str().expect("utf-8"),
+            "--until",
+            "0",
+        ]
+        .map(String::from),
+    );
+    assert_refused_before_writing(&world_model, &run, "--until 0");
+}

@@ -91,6 +91,8 @@ pub enum RunError {
         missing: PathBuf,
         recorded: PathBuf,
     },
+    #[error("--until 0: a run of no steps would ship untrained weights")]
+    NoSteps,
     #[error(transparent)]
     Set(#[from] SynthSetError),
     #[error(transparent)]
@@ -289,6 +291,9 @@ pub fn train(
     device: &Device,
     progress: &mut dyn Progress,
 ) -> Result<TrainSummary, RunError> {
+    if request.until == Some(0) {
+        return Err(RunError::NoSteps);
+    }
     let (config, mut model) = configs(request)?;
     keep_what_the_run_started_with(request, &mut model)?;
     let latest = checkpoint::latest(&request.out);
