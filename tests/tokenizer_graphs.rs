@@ -322,6 +322,33 @@ fn tokenizer_stats_matches_the_latents_it_summarises() {
         .expect("same weights");
     assert!(file.check_matches("tokenizer-tiny", "0123", &path).is_err());
 
+    // A second run over fewer frames must not silently replace the file.
+    let before = std::fs::read(&path).expect("stats bytes");
+    let rerun = |extra: &[&str]| {
+        let mut args = vec![
+            "tokenizer",
+            "stats",
+            "--config",
+            config_path.to_str().expect("utf-8"),
+            "--weights",
+            weights.to_str().expect("utf-8"),
+            "--data",
+            data.to_str().expect("utf-8"),
+            "--max-frames",
+            "1",
+        ];
+        args.extend_from_slice(extra);
+        bevworld(&args)
+    };
+    let refused = rerun(&[]);
+    assert!(!refused.status.success());
+    assert!(text(&refused).contains("--overwrite"), "{}", text(&refused));
+    assert_eq!(std::fs::read(&path).expect("stats bytes"), before);
+    let replaced = rerun(&["--overwrite"]);
+    assert!(replaced.status.success(), "{}", text(&replaced));
+    assert_eq!(LatentStatsFile::load(&path).expect("stats").stats.frames, 1);
+    std::fs::write(&path, &before).expect("restore");
+
     // The same latents, encoded here, give the same per-channel means and deviations.
     let model = load_weights(&config, &weights, &device).expect("load");
     let inputs = FrameInputs::new(&config);

@@ -37,6 +37,10 @@ pub struct StatsArgs {
     /// Output file (default: the weights path with extension .stats.json).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Replace an existing statistics file (the shipped one describes the shipped weights
+    /// over their whole training set; a run over a few frames must not silently replace it).
+    #[arg(long)]
+    pub overwrite: bool,
 }
 
 pub fn run(command: &TokenizerCommand) -> Result<ExitCode> {
@@ -46,6 +50,16 @@ pub fn run(command: &TokenizerCommand) -> Result<ExitCode> {
 }
 
 fn stats(args: &StatsArgs) -> Result<ExitCode> {
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| stats_path_for(&args.weights));
+    if out.exists() && !args.overwrite {
+        bail!(
+            "{} already exists; pass --overwrite to replace it, or --out to write elsewhere",
+            out.display()
+        );
+    }
     let config = TokenizerConfig::from_yaml_file(&args.config)?;
     let (_, device) = bevworld_device::from_env()?;
     let model = load_weights(&config, &args.weights, &device)?;
@@ -87,10 +101,6 @@ fn stats(args: &StatsArgs) -> Result<ExitCode> {
     }
     progress.finish_and_clear();
     let stats = accumulator.finish()?;
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| stats_path_for(&args.weights));
     let file = LatentStatsFile {
         model: config.name.clone(),
         weights_hash,
