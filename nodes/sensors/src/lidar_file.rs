@@ -45,6 +45,14 @@ pub fn decode_points(
     path: &Path,
 ) -> Result<(Vec<LidarPoint>, usize)> {
     let stride = layout.floats_per_point() * 4;
+    // A Velodyne scan always holds returns: an empty file is a failed copy or a crashed
+    // writer, and read as a frame it would score as a scene with nothing in it.
+    if bytes.is_empty() && layout == LidarLayout::Kitti {
+        return Err(SensorError::file(
+            path,
+            "empty scan: 0 bytes (a KITTI scan holds at least one float32 x 4 point)",
+        ));
+    }
     if !bytes.len().is_multiple_of(stride) {
         return Err(SensorError::file(
             path,

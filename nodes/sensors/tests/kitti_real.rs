@@ -179,3 +179,23 @@ fn truncated_scan_is_an_error_naming_the_file() {
         "{error}"
     );
 }
+
+#[test]
+fn an_empty_scan_is_an_error_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    if !copy_sequence(dir.path()) {
+        return;
+    }
+    let path = dir.path().join("velodyne/000002.bin");
+    std::fs::write(&path, b"").unwrap();
+    let kitti = Kitti::open(dir.path(), NonFinitePolicy::Drop).unwrap();
+    let error = kitti
+        .decode(kitti.fetch(2).unwrap())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        error.contains("000002.bin") && error.contains("empty"),
+        "{error}"
+    );
+}
