@@ -8,6 +8,8 @@ use bevworld_types::ConfigProblem;
 use bevworld_types::problem::{require_count, require_positive};
 use serde::{Deserialize, Serialize};
 
+use crate::ego_warp::LatentGrid;
+
 /// What the network predicts for the noisy future frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -144,6 +146,17 @@ impl WorldModelConfig {
 
     pub fn mlp_hidden(&self) -> usize {
         (self.width as f64 * self.mlp_ratio).round() as usize
+    }
+
+    /// Where the latent lies: its shape and BEV extent.
+    pub fn latent_grid(&self) -> LatentGrid {
+        LatentGrid {
+            channels: self.latent_channels,
+            height: self.latent_size[0],
+            width: self.latent_size[1],
+            x_range: self.x_range,
+            y_range: self.y_range,
+        }
     }
 
     /// Metres per latent cell along x and y.

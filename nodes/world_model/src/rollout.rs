@@ -53,13 +53,7 @@ pub struct Rollout<'a> {
 
 impl Rollout<'_> {
     fn grid(&self) -> LatentGrid {
-        LatentGrid {
-            channels: self.config.latent_channels,
-            height: self.config.latent_size[0],
-            width: self.config.latent_size[1],
-            x_range: self.config.x_range,
-            y_range: self.config.y_range,
-        }
+        self.config.latent_grid()
     }
 
     /// The N future latents (and the ego-warp baseline), given the context latents oldest

@@ -9,7 +9,7 @@ use bevworld_world_model::{DdimConfig, WorldModelConfig};
 use burn::prelude::*;
 
 use crate::config::{CacheConfig, KEYFRAMES_INDEX, TrainWorldModelConfig};
-use crate::data::{Expected, load_sequences};
+use crate::data::load_sequences;
 use crate::run::{RunError, tokenizer_identity};
 use crate::trainer::{HorizonScores, score_windows};
 use crate::window::{WindowShape, WindowValues};
@@ -46,30 +46,9 @@ pub fn evaluate(
         Some((&tokenizer.model, &tokenizer.weights_hash)),
         device,
     )?;
-    let expected = Expected {
-        model: tokenizer.model.clone(),
-        weights_hash: tokenizer.weights_hash.clone(),
-        shape: [
-            model_config.latent_channels,
-            model_config.latent_size[0],
-            model_config.latent_size[1],
-        ],
-        stats: tokenizer.stats.stats.clone(),
-        gap_factor: config.gap_factor,
-    };
+    let expected = tokenizer.expected(model_config, config.gap_factor);
     let sequences = load_sequences(&cache.latents, KEYFRAMES_INDEX, &expected)?;
-    let shape = WindowShape {
-        context: model_config.context_frames,
-        future: model_config.future_frames,
-        grid: bevworld_world_model::LatentGrid {
-            channels: model_config.latent_channels,
-            height: model_config.latent_size[0],
-            width: model_config.latent_size[1],
-            x_range: model_config.x_range,
-            y_range: model_config.y_range,
-        },
-        residual: model_config.residual_over_ego_warp,
-    };
+    let shape = WindowShape::of(model_config);
     let frames = shape.context + shape.future;
     let mut scene_of = Vec::new();
     let mut windows = Vec::new();

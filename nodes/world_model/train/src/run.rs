@@ -15,7 +15,7 @@ use bevworld_training::{LoopPlan, MetricsLog, Observer, Trainee, plot_curves, ru
 use bevworld_types::{LatentStatsFile, StatsFileError, stats_path_for};
 use bevworld_world_model::config::ConfigError as ModelConfigError;
 use bevworld_world_model::weights::{WorldModelWeightsError, save_weights};
-use bevworld_world_model::{ActionStats, LatentGrid, Target, WeightsMeta, WorldModelConfig};
+use bevworld_world_model::{ActionStats, Target, WeightsMeta, WorldModelConfig};
 use burn::prelude::*;
 
 use crate::config::{
@@ -170,6 +170,20 @@ pub struct TokenizerIdentity {
     pub stats: LatentStatsFile,
 }
 
+impl TokenizerIdentity {
+    /// What a cache of this tokenizer's latents must hold for `model`.
+    pub fn expected(&self, model: &WorldModelConfig, gap_factor: f64) -> Expected {
+        let grid = model.latent_grid();
+        Expected {
+            model: self.model.clone(),
+            weights_hash: self.weights_hash.clone(),
+            shape: [grid.channels, grid.height, grid.width],
+            stats: self.stats.stats.clone(),
+            gap_factor,
+        }
+    }
+}
+
 /// Reads the tokenizer's weights digest and its statistics file, refusing statistics made
 /// with other weights.
 pub fn tokenizer_identity(weights: &Path) -> Result<TokenizerIdentity, RunError> {
@@ -250,36 +264,14 @@ pub fn train(
     let device = device.clone().autodiff();
     let device = &device;
     let tokenizer = tokenizer_identity(&config.tokenizer_weights)?;
-    let expected = Expected {
-        model: tokenizer.model.clone(),
-        weights_hash: tokenizer.weights_hash.clone(),
-        shape: [
-            model_config.latent_channels,
-            model_config.latent_size[0],
-            model_config.latent_size[1],
-        ],
-        stats: tokenizer.stats.stats.clone(),
-        gap_factor: config.gap_factor,
-    };
+    let expected = tokenizer.expected(&model_config, config.gap_factor);
     let sweeps = load_sequences(&config.train.latents, SWEEPS_INDEX, &expected)?;
     let keyframes = load_sequences(&config.train.latents, KEYFRAMES_INDEX, &expected)?;
     let val = load_sequences(&config.val.latents, KEYFRAMES_INDEX, &expected)?;
     // The model runs at keyframes: its actions are normalised with the keyframe actions'
     // statistics.
     let action_stats = ActionStats::compute(keyframes.actions().iter())?;
-    let grid = LatentGrid {
-        channels: model_config.latent_channels,
-        height: model_config.latent_size[0],
-        width: model_config.latent_size[1],
-        x_range: model_config.x_range,
-        y_range: model_config.y_range,
-    };
-    let shape = WindowShape {
-        context: model_config.context_frames,
-        future: model_config.future_frames,
-        grid,
-        residual: model_config.residual_over_ego_warp,
-    };
+    let shape = WindowShape::of(&model_config);
     let validation: Vec<WindowValues> = spread_windows(
         &val,
         shape.context + shape.future,

@@ -189,13 +189,7 @@ impl WorldModelTrainer {
         device: &Device,
         threads: usize,
     ) -> Result<Self, TrainError> {
-        let grid = LatentGrid {
-            channels: model_config.latent_channels,
-            height: model_config.latent_size[0],
-            width: model_config.latent_size[1],
-            x_range: model_config.x_range,
-            y_range: model_config.y_range,
-        };
+        let grid = model_config.latent_grid();
         let mut stage_windows = Vec::new();
         for stage in &config.stages {
             let frames = stage.context + stage.future;
@@ -439,18 +433,7 @@ pub fn score_windows(
     threads: usize,
     device: &Device,
 ) -> Result<Vec<HorizonScores>, TrainError> {
-    let shape = WindowShape {
-        context: config.context_frames,
-        future: config.future_frames,
-        grid: LatentGrid {
-            channels: config.latent_channels,
-            height: config.latent_size[0],
-            width: config.latent_size[1],
-            x_range: config.x_range,
-            y_range: config.y_range,
-        },
-        residual: config.residual_over_ego_warp,
-    };
+    let shape = WindowShape::of(config);
     let schedule = NoiseSchedule::new(&config.diffusion);
     parallel_map(
         windows,

@@ -3,7 +3,7 @@
 //! frame (the ego-warp baseline, and the base a residual model adds to), and the target the
 //! network learns to sample: the future latents, or their residual over that warp.
 
-use bevworld_world_model::{ActionStats, LatentGrid, PlanarMotion, warp_latent};
+use bevworld_world_model::{ActionStats, LatentGrid, PlanarMotion, WorldModelConfig, warp_latent};
 use burn::prelude::*;
 
 use crate::data::Sequence;
@@ -28,6 +28,18 @@ pub struct WindowValues {
     pub warped: Vec<f32>,
     /// `[context + future, 5]`, normalised.
     pub actions: Vec<f32>,
+}
+
+impl WindowShape {
+    /// The model's own windows: its condition and future frames, its grid and target.
+    pub fn of(config: &WorldModelConfig) -> Self {
+        Self {
+            context: config.context_frames,
+            future: config.future_frames,
+            grid: config.latent_grid(),
+            residual: config.residual_over_ego_warp,
+        }
+    }
 }
 
 impl WindowValues {
