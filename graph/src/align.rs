@@ -13,6 +13,8 @@ use crate::message::Message;
 
 pub struct Aligner {
     queues: Vec<VecDeque<Message>>,
+    /// Ports with an edge: an optional input left unconnected never holds a group back.
+    connected: Vec<bool>,
     tolerance_us: i64,
     unmatched: u64,
 }
@@ -21,9 +23,18 @@ impl Aligner {
     pub fn new(inputs: usize, tolerance_us: i64) -> Self {
         Self {
             queues: (0..inputs).map(|_| VecDeque::new()).collect(),
+            connected: vec![true; inputs],
             tolerance_us: tolerance_us.max(0),
             unmatched: 0,
         }
+    }
+
+    /// An aligner over the ports in `connected` only, of `inputs`; groups hold `None` for the
+    /// others.
+    pub fn over(inputs: usize, connected: &[usize], tolerance_us: i64) -> Self {
+        let mut aligner = Self::new(inputs, tolerance_us);
+        aligner.connected = (0..inputs).map(|p| connected.contains(&p)).collect();
+        aligner
     }
 
     pub fn push(&mut self, port: usize, message: Message) {
@@ -36,7 +47,14 @@ impl Aligner {
     pub fn pop_group(&mut self) -> Option<Vec<Option<Message>>> {
         loop {
             let mut newest = i64::MIN;
-            for queue in &self.queues {
+            let active = || {
+                self.queues
+                    .iter()
+                    .zip(&self.connected)
+                    .filter(|(_, c)| **c)
+                    .map(|(q, _)| q)
+            };
+            for queue in active() {
                 let head = queue.front()?;
                 newest = newest.max(head.header().time_of_validity_us);
             }
@@ -108,6 +126,17 @@ mod tests {
         assert_eq!(tovs(&aligner.pop_group().unwrap()), vec![166_666, 170_000]);
         assert_eq!(aligner.unmatched(), 1); // the camera frame at 83_333
         assert!(aligner.pop_group().is_none());
+    }
+
+    #[test]
+    fn an_unconnected_port_does_not_hold_groups_back() {
+        let mut aligner = Aligner::over(3, &[0, 2], 0);
+        aligner.push(0, at(5));
+        assert!(aligner.pop_group().is_none());
+        aligner.push(2, at(5));
+        let group = aligner.pop_group().unwrap();
+        assert!(group[1].is_none());
+        assert_eq!(*group[2].as_ref().unwrap().get::<i64>().unwrap(), 5);
     }
 
     #[test]

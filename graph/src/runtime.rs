@@ -560,9 +560,13 @@ fn drive_consumer(
         return thread.report;
     }
     let port_count = thread.input_ports.len();
-    let aligned = port_count > 1 && thread.sync == SyncMode::Aligned;
-    let mut aligner = Aligner::new(port_count, thread.align_tolerance_us);
     let receivers = std::mem::take(&mut thread.inputs);
+    let mut connected: Vec<usize> = receivers.iter().map(|(port, _)| *port).collect();
+    connected.sort_unstable();
+    connected.dedup();
+    // Aligned over the ports that have edges: an optional input left unconnected never waits.
+    let aligned = connected.len() > 1 && thread.sync == SyncMode::Aligned;
+    let mut aligner = Aligner::over(port_count, &connected, thread.align_tolerance_us);
     let abort = shared.stop.abort_rx.clone();
     let spin = thread.idle_spin;
 
