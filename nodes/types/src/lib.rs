@@ -13,6 +13,7 @@ pub mod action;
 pub mod bev;
 pub mod camera;
 pub mod ego_body;
+pub mod forecast;
 pub mod frame;
 pub mod latent_stats;
 pub mod latent_stats_file;
@@ -25,6 +26,10 @@ pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
 pub use ego_body::EgoBody;
+pub use forecast::{
+    Forecast, ForecastHorizon, ForecastMethod, FutureView, LatentWindow, LoggedPose,
+    RenderedFuture, virtual_frame,
+};
 pub use frame::SensorFrame;
 pub use latent_stats::{LatentStats, LatentStatsAccumulator, LatentStatsError};
 pub use latent_stats_file::{LatentStatsFile, StatsFileError, stats_path_for};
