@@ -19,6 +19,7 @@ pub mod ego_warp;
 pub mod forecast;
 pub mod manoeuvre;
 pub mod model;
+pub mod nodes;
 pub mod patch;
 pub mod rollout;
 pub mod schedule;
@@ -31,6 +32,7 @@ pub use ego_warp::{LatentGrid, PlanarMotion, warp_latent};
 pub use forecast::{ForecastInputs, forecast};
 pub use manoeuvre::Manoeuvre;
 pub use model::WorldModel;
+pub use nodes::register;
 pub use rollout::{Rollout, RolloutError, RolloutOutput};
 pub use schedule::NoiseSchedule;
 pub use weights::{

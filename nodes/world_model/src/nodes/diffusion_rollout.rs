@@ -1,0 +1,428 @@
+//! `diffusion_rollout`: from a window of past latents, the world model's forecast of the next
+//! N, of which it emits the requested horizons. Each future latent is a `BevFeatures` over
+//! the predicted future ego frame: the current pose moved by the actions it was conditioned
+//! on, at the future time of validity.
+//!
+//! The future actions are the log's (`actions: log`, replay), a manoeuvre from the current
+//! motion (`keep`, the default since live use has no logged future; `left`, `right`,
+//! `faster`, `slower`, `stop`: `Manoeuvre`), or an explicit list of speeds and yaw rates
+//! (`actions: list`, `action_list`). With `baselines`, the latent baselines ride along: the
+//! current latent as it is (`latent_copy_last`) and moved by the same actions
+//! (`latent_ego_warp`).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use bevworld_graph::{
+    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
+};
+use bevworld_types::{
+    BevFeatures, EgoAction, Forecast, ForecastHorizon, ForecastMethod, FrameMeta, LatentStats,
+    LatentStatsFile, LatentWindow, Pose,
+};
+use burn::prelude::*;
+use glam::{DQuat, DVec3};
+use serde::{Deserialize, Serialize};
+
+use crate::actions::ActionStats;
+use crate::config::WorldModelConfig;
+use crate::ddim::{DdimConfig, Spacing};
+use crate::ego_warp::PlanarMotion;
+use crate::manoeuvre::{Manoeuvre, constant_turn};
+use crate::model::WorldModel;
+use crate::nodes::model_params::WorldModelParams;
+use crate::rollout::Rollout;
+use crate::weights::load_weights;
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DiffusionRolloutParams {
+    #[serde(flatten)]
+    pub model: WorldModelParams,
+    /// The tokenizer's statistics file, which standardises the latents
+    /// (`nodes/tokenizer/weights/tokenizer-tiny.stats.json`); it must be of the tokenizer the
+    /// weights pair with.
+    pub latent_stats: PathBuf,
+    /// Horizons to emit, in seconds: multiples of the model's frame interval up to its last
+    /// future frame.
+    pub horizons: Vec<f64>,
+    /// DDIM steps, η and the noise seed.
+    #[serde(default = "one")]
+    pub steps: usize,
+    #[serde(default)]
+    pub eta: f64,
+    #[serde(default)]
+    pub spacing: Spacing,
+    #[serde(default)]
+    pub seed: u64,
+    /// `log`, a manoeuvre (`keep`, `left`, `right`, `faster`, `slower`, `stop`) or `list`.
+    #[serde(default = "default_actions")]
+    pub actions: String,
+    /// With `actions: list`: `[speed m/s, yaw rate rad/s]` for each future frame.
+    #[serde(default)]
+    pub action_list: Option<Vec<[f64; 2]>>,
+    /// Emit the latent baselines (copy-last, ego-warp) with the forecast.
+    #[serde(default = "yes")]
+    pub baselines: bool,
+}
+
+fn one() -> usize {
+    1
+}
+fn yes() -> bool {
+    true
+}
+fn default_actions() -> String {
+    "keep".into()
+}
+
+/// Where the future actions come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FutureActions {
+    Log,
+    Manoeuvre(Manoeuvre),
+    /// `[speed, yaw rate]` per future frame.
+    List(Vec<[f64; 2]>),
+}
+
+impl FutureActions {
+    pub fn name(&self) -> String {
+        match self {
+            FutureActions::Log => "log".into(),
+            FutureActions::Manoeuvre(m) => format!("{m:?}").to_lowercase(),
+            FutureActions::List(_) => "list".into(),
+        }
+    }
+
+    /// The actions into each of the `frames` future frames `dt_s` apart.
+    pub fn resolve(
+        &self,
+        window: &LatentWindow,
+        frames: usize,
+        dt_s: f64,
+    ) -> Result<Vec<EgoAction>, String> {
+        match self {
+            FutureActions::Log => {
+                let current = window.current().ok_or("an empty window")?;
+                let mut previous = (
+                    current.meta.global_from_ego,
+                    current.meta.time_of_validity_us,
+                );
+                let mut actions = Vec::with_capacity(frames);
+                for logged in window.logged_future.iter().take(frames) {
+                    let action = EgoAction::between(
+                        &previous.0,
+                        previous.1,
+                        &logged.global_from_ego,
+                        logged.time_of_validity_us,
+                    )
+                    .ok_or("the logged future's times do not increase")?;
+                    actions.push(action);
+                    previous = (logged.global_from_ego, logged.time_of_validity_us);
+                }
+                // Past the end of the log, the ego keeps its last speed and yaw rate.
+                if actions.len() < frames {
+                    let last = actions
+                        .last()
+                        .or(window.context_actions.last())
+                        .copied()
+                        .unwrap_or_default();
+                    let rest = frames - actions.len();
+                    actions.extend(Manoeuvre::Keep.actions(&last, rest, dt_s));
+                }
+                Ok(actions)
+            }
+            FutureActions::Manoeuvre(manoeuvre) => {
+                let current = window.context_actions.last().copied().unwrap_or_default();
+                Ok(manoeuvre.actions(&current, frames, dt_s))
+            }
+            FutureActions::List(list) => Ok(list
+                .iter()
+                .map(|&[speed, yaw_rate]| constant_turn(speed, yaw_rate, dt_s))
+                .collect()),
+        }
+    }
+}
+
+/// The names `actions` accepts, for its errors.
+pub fn accepted_actions() -> String {
+    let mut names: Vec<String> = vec!["log".into()];
+    names.extend(
+        Manoeuvre::ALL
+            .iter()
+            .map(|m| format!("{m:?}").to_lowercase()),
+    );
+    names.push("list (with action_list)".into());
+    names.join(", ")
+}
+
+/// Checked params: the actions, and each horizon's frame count.
+pub struct RolloutPlan {
+    pub config: WorldModelConfig,
+    pub actions: FutureActions,
+    pub horizons: Vec<(f64, usize)>,
+    pub sampler: DdimConfig,
+}
+
+pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> {
+    let (config, meta) = params.model.check()?;
+    let n = config.future_frames;
+    let interval = config.frame_interval_s;
+    let actions = match params.actions.as_str() {
+        "log" => FutureActions::Log,
+        "list" => {
+            let Some(list) = &params.action_list else {
+                return Err(ParamError::field(
+                    "action_list",
+                    format!(
+                        "`actions: list` needs `action_list`: {n} pairs [speed m/s, yaw rate rad/s]"
+                    ),
+                ));
+            };
+            if list.len() != n || list.iter().flatten().any(|v| !v.is_finite()) {
+                return Err(ParamError::field(
+                    "action_list",
+                    format!(
+                        "{} entries; the model forecasts {n} frames, so it needs {n} finite pairs [speed m/s, yaw rate rad/s]",
+                        list.len()
+                    ),
+                ));
+            }
+            FutureActions::List(list.clone())
+        }
+        other => FutureActions::Manoeuvre(Manoeuvre::parse(other).ok_or_else(|| {
+            ParamError::field("actions", format!("unknown actions '{other}'"))
+                .with_accepted(accepted_actions())
+        })?),
+    };
+    if params.action_list.is_some()
+        && actions != FutureActions::List(params.action_list.clone().unwrap_or_default())
+    {
+        return Err(ParamError::field(
+            "action_list",
+            "is read only with `actions: list`",
+        ));
+    }
+    if params.horizons.is_empty() {
+        return Err(ParamError::field(
+            "horizons",
+            "is empty: name at least one, e.g. [0.5, 1.0, 3.0]",
+        ));
+    }
+    let mut horizons = Vec::new();
+    for &h in &params.horizons {
+        let frames = (h / interval).round();
+        if !h.is_finite()
+            || frames < 1.0
+            || (frames * interval - h).abs() > 1e-6
+            || frames as usize > n
+        {
+            return Err(ParamError::field(
+                "horizons",
+                format!(
+                    "{h} s is not a forecast the model makes: it forecasts N = {n} frames {interval} s apart, so a horizon is a multiple of {interval} s up to {} s",
+                    n as f64 * interval
+                ),
+            ));
+        }
+        if horizons.iter().any(|&(seen, _)| seen == h) {
+            return Err(ParamError::field(
+                "horizons",
+                format!("{h} s is named twice"),
+            ));
+        }
+        horizons.push((h, frames as usize));
+    }
+    let sampler = DdimConfig {
+        steps: params.steps,
+        eta: params.eta,
+        spacing: params.spacing,
+        seed: params.seed,
+    };
+    sampler
+        .check(&crate::schedule::NoiseSchedule::new(&config.diffusion))
+        .map_err(|error| ParamError::field("steps", error.to_string()))?;
+    let stats = LatentStatsFile::load(&params.latent_stats)
+        .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
+    stats
+        .check_matches(
+            &meta.tokenizer_model,
+            &meta.tokenizer_weights_hash,
+            &params.latent_stats,
+        )
+        .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
+    Ok(RolloutPlan {
+        config,
+        actions,
+        horizons,
+        sampler,
+    })
+}
+
+pub struct DiffusionRolloutNode {
+    plan: RolloutPlan,
+    model: WorldModel,
+    action_stats: ActionStats,
+    latent_stats: LatentStats,
+    device: Device,
+    baselines: bool,
+    forecasts: u64,
+    sampling_ms: f64,
+}
+
+/// `global_from_future = global_from_current · current_from_future`, on the ground plane.
+fn moved(global_from_current: &Pose, current_from_future: &PlanarMotion) -> Pose {
+    let current_from_future = Pose::from_rotation_translation(
+        DQuat::from_rotation_z(current_from_future.yaw),
+        DVec3::new(current_from_future.x, current_from_future.y, 0.0),
+    );
+    *global_from_current * current_from_future
+}
+
+impl DiffusionRolloutNode {
+    pub fn forecast(&self, window: &LatentWindow) -> Result<Forecast, String> {
+        let config = &self.plan.config;
+        let n = config.future_frames;
+        let current = window.current().ok_or("an empty window")?;
+        let future_actions = self
+            .plan
+            .actions
+            .resolve(window, n, config.frame_interval_s)?;
+        let rollout = Rollout {
+            model: &self.model,
+            config,
+            action_stats: &self.action_stats,
+            latent_stats: &self.latent_stats,
+            device: self.device.clone(),
+        };
+        let context: Vec<Vec<f32>> = window.context.iter().map(|l| l.data.clone()).collect();
+        let started = Instant::now();
+        let output = rollout
+            .run(
+                &context,
+                &window.context_actions,
+                &future_actions,
+                &self.plan.sampler,
+            )
+            .map_err(|error| format!("frame {}: {error}", current.meta.frame_token))?;
+        let sampling_ms = started.elapsed().as_secs_f64() * 1e3;
+
+        let mut current_from_future = PlanarMotion::default();
+        let mut poses = Vec::with_capacity(n);
+        for action in &future_actions {
+            current_from_future = current_from_future.then(&PlanarMotion::of_action(action));
+            poses.push(moved(&current.meta.global_from_ego, &current_from_future));
+        }
+        let horizons = self
+            .plan
+            .horizons
+            .iter()
+            .map(|&(horizon_s, frames_ahead)| {
+                let k = frames_ahead - 1;
+                let time = match window.logged_future.get(k) {
+                    Some(logged) if self.plan.actions == FutureActions::Log => {
+                        logged.time_of_validity_us
+                    }
+                    _ => current.meta.time_of_validity_us + (horizon_s * 1e6).round() as i64,
+                };
+                let latent = |method: ForecastMethod, data: Vec<f32>| {
+                    let features = BevFeatures {
+                        meta: FrameMeta {
+                            sample_token: current.meta.sample_token.clone(),
+                            frame_token: format!("{}+{horizon_s}s", current.meta.frame_token),
+                            scene_name: current.meta.scene_name.clone(),
+                            time_of_validity_us: time,
+                            global_from_ego: poses[k],
+                        },
+                        data,
+                        ..BevFeatures::clone(current)
+                    };
+                    (method, Arc::new(features))
+                };
+                let mut latents = vec![latent(ForecastMethod::Model, output.future[k].clone())];
+                if self.baselines {
+                    latents.push(latent(ForecastMethod::LatentCopyLast, current.data.clone()));
+                    latents.push(latent(
+                        ForecastMethod::LatentEgoWarp,
+                        output.ego_warped[k].clone(),
+                    ));
+                }
+                ForecastHorizon {
+                    horizon_s,
+                    frames_ahead,
+                    latents,
+                }
+            })
+            .collect();
+        Ok(Forecast {
+            context: current.meta.clone(),
+            actions_from: self.plan.actions.name(),
+            future_actions,
+            horizons,
+            sampling_ms,
+        })
+    }
+}
+
+impl Task for DiffusionRolloutNode {
+    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
+        let window = inputs.get::<LatentWindow>("window")?;
+        let forecast = self.forecast(window).map_err(NodeError::item)?;
+        self.forecasts += 1;
+        self.sampling_ms += forecast.sampling_ms;
+        out.send("forecast", forecast)
+    }
+
+    fn report(&self) -> Figures {
+        let mut figures = Figures::new();
+        figures.insert("forecasts".into(), self.forecasts as f64);
+        if self.forecasts > 0 {
+            figures.insert(
+                "sampling_ms_mean".into(),
+                self.sampling_ms / self.forecasts as f64,
+            );
+        }
+        figures
+    }
+}
+
+/// Builds the node: the checked plan, the weights (paired with the statistics' tokenizer) and
+/// the device.
+pub fn build(params: &DiffusionRolloutParams) -> Result<DiffusionRolloutNode, ParamError> {
+    let plan = plan(params)?;
+    let stats = LatentStatsFile::load(&params.latent_stats)
+        .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
+    let (_, device) = bevworld_device::from_env()
+        .map_err(|error| ParamError::field("model", format!("no device to run it on: {error}")))?;
+    let weights = load_weights(
+        &plan.config,
+        &params.model.weights,
+        Some((&stats.model, &stats.weights_hash)),
+        &device,
+    )
+    .map_err(|error| ParamError::field("weights", error.to_string()))?;
+    Ok(DiffusionRolloutNode {
+        action_stats: weights.meta.action_stats.clone(),
+        model: weights.model,
+        latent_stats: stats.stats,
+        device,
+        baselines: params.baselines,
+        plan,
+        forecasts: 0,
+        sampling_ms: 0.0,
+    })
+}
+
+pub fn register(registry: &mut Registry) {
+    registry.register_checked(
+        KindSpec::task(
+            "diffusion_rollout",
+            "the world model: a window of past latents to the future latents at the requested horizons, by DDIM",
+        )
+        .input(PortSpec::new::<LatentWindow>("window"))
+        .output(PortSpec::new::<Forecast>("forecast")),
+        |params: &DiffusionRolloutParams| plan(params).map(|_| ()),
+        |params: DiffusionRolloutParams| Ok(Node::Task(Box::new(build(&params)?))),
+    );
+}

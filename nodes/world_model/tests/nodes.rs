@@ -1,0 +1,472 @@
+//! The world model's graph nodes without the graph: the latent history buffer (order, scene
+//! resets, gaps, its memory bound, refusals), the rollout's parameters (unknown manoeuvres,
+//! horizons past N, lists, statistics of another tokenizer) and its determinism on the
+//! shipped weights, and the pairing of forecasts with the frames they are rendered along.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use bevworld_types::{
+    BevFeatures, BevGrid, CameraChannel, CameraImage, EgoAction, Forecast, ForecastHorizon,
+    ForecastMethod, FrameMeta, Intrinsics, LatentWindow, LidarPoint, PointCloud, Pose, SensorFrame,
+};
+use bevworld_world_model::nodes::diffusion_rollout::{self, DiffusionRolloutParams};
+use bevworld_world_model::nodes::future_views::FutureViews;
+use bevworld_world_model::nodes::latent_history::{HistoryShape, LatentHistory};
+use bevworld_world_model::nodes::model_params::WorldModelParams;
+use glam::DVec3;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+const TOKENIZER: (&str, &str) = ("tokenizer-tiny", "digest");
+
+fn shape(future: usize) -> HistoryShape {
+    HistoryShape {
+        context: 3,
+        future,
+        interval_s: 0.5,
+        latent_shape: [4, 8, 8],
+        tokenizer: (TOKENIZER.0.into(), TOKENIZER.1.into()),
+    }
+}
+
+/// A latent of `scene` at `time_s`, the ego at x = 5 m/s · t.
+fn latent(scene: &str, time_s: f64) -> Arc<BevFeatures> {
+    Arc::new(BevFeatures {
+        meta: FrameMeta {
+            sample_token: format!("{scene}@{time_s}"),
+            frame_token: format!("{scene}@{time_s}"),
+            scene_name: scene.into(),
+            time_of_validity_us: (time_s * 1e6).round() as i64,
+            global_from_ego: Pose::from_translation(DVec3::new(5.0 * time_s, 0.0, 0.0)),
+        },
+        grid: BevGrid {
+            x_range: [-80.0, 80.0],
+            y_range: [-80.0, 80.0],
+            resolution: 20.0,
+            height: 8,
+            width: 8,
+        },
+        channels: (0..4).map(|c| format!("latent_{c}")).collect(),
+        data: vec![time_s as f32; 4 * 8 * 8],
+        model: TOKENIZER.0.into(),
+        weights_hash: TOKENIZER.1.into(),
+    })
+}
+
+fn times(window: &LatentWindow) -> Vec<f64> {
+    window
+        .context
+        .iter()
+        .map(|l| l.meta.time_of_validity_us as f64 * 1e-6)
+        .collect()
+}
+
+#[test]
+fn the_history_emits_one_window_per_frame_in_order_once_full() {
+    let mut history = LatentHistory::new(shape(0), Some(1), 1.5, 0.2);
+    let mut windows = Vec::new();
+    for k in 0..6 {
+        windows.extend(history.push(latent("a", 0.5 * k as f64)).expect("push"));
+        assert!(history.len() <= history.capacity());
+    }
+    // Context 3 needs 4 frames (the motion into the oldest): frames 3, 4, 5 complete windows.
+    assert_eq!(windows.len(), 3);
+    assert_eq!(times(&windows[0]), vec![0.5, 1.0, 1.5]);
+    assert_eq!(times(&windows[2]), vec![1.5, 2.0, 2.5]);
+    // The motion into each context frame: 2.5 m forward in 0.5 s.
+    for action in &windows[0].context_actions {
+        assert!((action.dx - 2.5).abs() < 1e-9 && (action.speed_mps - 5.0).abs() < 1e-9);
+    }
+    assert!(windows.iter().all(|w| w.logged_future.is_empty()));
+    assert_eq!(history.capacity(), 4, "bounded: context + 1");
+}
+
+#[test]
+fn the_history_resets_on_a_new_scene_and_on_a_gap() {
+    let mut history = LatentHistory::new(shape(0), Some(1), 1.5, 0.2);
+    let mut count = 0;
+    for k in 0..4 {
+        count += history
+            .push(latent("a", 0.5 * k as f64))
+            .expect("push")
+            .len();
+    }
+    assert_eq!(count, 1);
+    // A new scene starts over: three more frames make no window, the fourth does.
+    for k in 0..3 {
+        assert!(
+            history
+                .push(latent("b", 0.5 * k as f64))
+                .expect("push")
+                .is_empty()
+        );
+    }
+    assert_eq!(history.resets_scene, 1);
+    // A gap of 2 s (> 1.5 intervals) starts over too, and is counted.
+    assert!(history.push(latent("b", 3.0)).expect("push").is_empty());
+    assert_eq!((history.resets_gap, history.len()), (1, 1));
+    let mut windows = Vec::new();
+    for k in 1..4 {
+        windows.extend(
+            history
+                .push(latent("b", 3.0 + 0.5 * k as f64))
+                .expect("push"),
+        );
+    }
+    assert_eq!(windows.len(), 1);
+    assert_eq!(times(&windows[0]), vec![3.5, 4.0, 4.5]);
+}
+
+#[test]
+fn the_history_keeps_every_kth_frame_and_refuses_the_wrong_rate() {
+    let mut history = LatentHistory::new(shape(0), Some(6), 1.5, 0.2);
+    let mut windows = Vec::new();
+    for k in 0..24 {
+        windows.extend(history.push(latent("a", k as f64 / 12.0)).expect("push"));
+    }
+    assert_eq!(windows.len(), 1);
+    assert_eq!(times(&windows[0]), vec![0.5, 1.0, 1.5]);
+    // By time (the default): 12 Hz sweeps with some dropped on the way still make 2 Hz.
+    let mut by_time = LatentHistory::new(shape(0), None, 1.5, 0.2);
+    let mut windows = Vec::new();
+    for k in (0..30).filter(|k| k % 5 != 1) {
+        windows.extend(by_time.push(latent("a", k as f64 / 12.0)).expect("push"));
+    }
+    // 0.5 s was dropped: 7/12 s takes its slot, and 1.0 s is still the next one's.
+    let kept: Vec<Vec<i64>> = windows
+        .iter()
+        .map(|w| times(w).iter().map(|t| (t * 1e3).round() as i64).collect())
+        .collect();
+    assert_eq!(
+        kept[..2],
+        [vec![583, 1000, 1500], vec![1000, 1500, 2000]],
+        "{kept:?}"
+    );
+    assert_eq!(by_time.resets_gap, 0);
+    let mut wrong = LatentHistory::new(shape(0), Some(1), 1.5, 0.2);
+    wrong.push(latent("a", 0.0)).expect("first");
+    let error = wrong
+        .push(latent("a", 1.0 / 12.0))
+        .expect_err("12 Hz on a 2 Hz model");
+    assert!(error.contains("every"), "{error}");
+}
+
+#[test]
+fn the_history_refuses_latents_of_another_tokenizer() {
+    let mut history = LatentHistory::new(shape(0), Some(1), 1.5, 0.2);
+    let mut other = BevFeatures::clone(&latent("a", 0.0));
+    other.weights_hash = "another".into();
+    let error = history.push(Arc::new(other)).expect_err("refused");
+    assert!(
+        error.contains("another") && error.contains("digest"),
+        "{error}"
+    );
+    let mut small = BevFeatures::clone(&latent("a", 0.0));
+    small.data.truncate(10);
+    assert!(history.push(Arc::new(small)).is_err());
+}
+
+#[test]
+fn a_replayed_history_waits_for_the_logged_future_and_flushes_the_end_of_the_log() {
+    let mut history = LatentHistory::new(shape(2), None, 1.5, 0.2);
+    let mut windows = Vec::new();
+    for k in 0..7 {
+        windows.extend(history.push(latent("a", 0.5 * k as f64)).expect("push"));
+        assert!(history.len() <= 6, "bounded: context + 1 + future");
+    }
+    // Frames 0..=6 s/2: the contexts ending at 1.5 and 2.0 s have both future frames.
+    assert_eq!(windows.len(), 2);
+    assert_eq!(times(&windows[0]), vec![0.5, 1.0, 1.5]);
+    let future: Vec<i64> = windows[0]
+        .logged_future
+        .iter()
+        .map(|f| f.time_of_validity_us)
+        .collect();
+    assert_eq!(future, vec![2_000_000, 2_500_000]);
+    // The end of the log: 2.5 s with one logged future frame, 3.0 s with none.
+    let ends: Vec<(f64, usize)> = history
+        .flush()
+        .iter()
+        .map(|w| (times(w)[2], w.logged_future.len()))
+        .collect();
+    assert_eq!(ends, vec![(2.5, 1), (3.0, 0)]);
+    assert!(history.is_empty());
+}
+
+fn rollout_params(actions: &str, horizons: &[f64]) -> DiffusionRolloutParams {
+    DiffusionRolloutParams {
+        model: WorldModelParams {
+            model: repo().join("configs/models/world-model-tiny.yaml"),
+            weights: repo().join("nodes/world_model/weights/world-model-tiny.bpk"),
+        },
+        latent_stats: repo().join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"),
+        horizons: horizons.to_vec(),
+        steps: 1,
+        eta: 0.0,
+        spacing: Default::default(),
+        seed: 0,
+        actions: actions.into(),
+        action_list: None,
+        baselines: true,
+    }
+}
+
+fn refusal(params: &DiffusionRolloutParams) -> (String, String) {
+    let Err(error) = diffusion_rollout::plan(params) else {
+        panic!("{params:?} was accepted");
+    };
+    (
+        format!("{}: {}", error.field.unwrap_or_default(), error.message),
+        error.accepted.unwrap_or_default(),
+    )
+}
+
+#[test]
+fn the_rollout_refuses_unknown_manoeuvres_and_horizons_it_does_not_make() {
+    assert!(diffusion_rollout::plan(&rollout_params("left", &[0.5, 1.0, 3.0])).is_ok());
+    let (message, accepted) = refusal(&rollout_params("sideways", &[0.5]));
+    assert!(
+        message.starts_with("actions") && message.contains("sideways"),
+        "{message}"
+    );
+    for known in [
+        "log", "keep", "left", "right", "faster", "slower", "stop", "list",
+    ] {
+        assert!(accepted.contains(known), "{accepted}");
+    }
+    // N = 6 frames 0.5 s apart: 3.5 s is past the last, 0.7 s is not a frame.
+    for horizon in [3.5, 0.7, 0.0, -0.5] {
+        let (message, _) = refusal(&rollout_params("keep", &[horizon]));
+        assert!(
+            message.starts_with("horizons") && message.contains("N = 6"),
+            "{message}"
+        );
+    }
+    assert!(refusal(&rollout_params("keep", &[])).0.contains("empty"));
+    assert!(
+        refusal(&rollout_params("keep", &[1.0, 1.0]))
+            .0
+            .contains("twice")
+    );
+    let mut list = rollout_params("list", &[1.0]);
+    assert!(refusal(&list).0.starts_with("action_list"));
+    list.action_list = Some(vec![[8.0, 0.0]; 2]);
+    assert!(refusal(&list).0.contains("needs 6"));
+    list.action_list = Some(vec![[8.0, 0.1]; 6]);
+    assert!(diffusion_rollout::plan(&list).is_ok());
+    let mut other_stats = rollout_params("keep", &[1.0]);
+    other_stats.latent_stats = repo().join("nodes/world_model/weights/world-model-tiny.meta.json");
+    assert!(refusal(&other_stats).0.starts_with("latent_stats"));
+    let mut steps = rollout_params("keep", &[1.0]);
+    steps.steps = 0;
+    assert!(refusal(&steps).0.starts_with("steps"));
+}
+
+/// A window of the shipped model's shape, from the tokenizer's own statistics' scale.
+fn window(seed: u64) -> LatentWindow {
+    let meta: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(repo().join("nodes/world_model/weights/world-model-tiny.meta.json"))
+            .expect("meta"),
+    )
+    .expect("json");
+    let hash = meta["tokenizer_weights_hash"]
+        .as_str()
+        .expect("hash")
+        .to_string();
+    let mut state = seed;
+    let mut noise = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((state >> 33) as f32 / (1u64 << 31) as f32) - 0.5
+    };
+    let context = (0..3)
+        .map(|k| {
+            let mut l = BevFeatures::clone(&latent("a", 0.5 * k as f64));
+            l.grid.height = 64;
+            l.grid.width = 64;
+            l.data = (0..4 * 64 * 64).map(|_| noise()).collect();
+            l.weights_hash = hash.clone();
+            Arc::new(l)
+        })
+        .collect();
+    LatentWindow {
+        context,
+        context_actions: vec![
+            EgoAction::between(
+                &Pose::IDENTITY,
+                0,
+                &Pose::from_translation(DVec3::new(2.5, 0.0, 0.0)),
+                500_000
+            )
+            .expect("action");
+            3
+        ],
+        logged_future: Vec::new(),
+        stride_s: 0.5,
+    }
+}
+
+#[test]
+fn the_rollout_is_deterministic_for_a_seed_and_moves_the_pose_by_its_actions() {
+    let node = diffusion_rollout::build(&rollout_params("keep", &[0.5, 3.0])).expect("node");
+    let first = node.forecast(&window(1)).expect("forecast");
+    let again = node.forecast(&window(1)).expect("forecast");
+    assert_eq!(first.horizons.len(), 2);
+    for (a, b) in first.horizons.iter().zip(&again.horizons) {
+        for ((ma, la), (mb, lb)) in a.latents.iter().zip(&b.latents) {
+            assert_eq!(ma, mb);
+            assert_eq!(la.data, lb.data, "{ma:?} at {} s", a.horizon_s);
+        }
+    }
+    let horizon = &first.horizons[1];
+    assert_eq!((horizon.horizon_s, horizon.frames_ahead), (3.0, 6));
+    let model = horizon.latent(ForecastMethod::Model).expect("model");
+    // `keep` at 5 m/s straight: 15 m ahead of the current frame (at 1.0 s, x = 5 m), at 4.0 s.
+    assert_eq!(model.meta.time_of_validity_us, 4_000_000);
+    let x = model.meta.global_from_ego.translation.x;
+    assert!((x - 20.0).abs() < 1e-6, "{x}");
+    assert!(model.data.iter().all(|v| v.is_finite()));
+    let copy = horizon
+        .latent(ForecastMethod::LatentCopyLast)
+        .expect("copy");
+    assert_eq!(
+        copy.data, first.horizons[0].latents[1].1.data,
+        "copy-last is the current latent"
+    );
+    assert_ne!(model.data, copy.data);
+}
+
+fn frame(scene: &str, time_s: f64) -> Arc<SensorFrame> {
+    let pose = Pose::from_translation(DVec3::new(5.0 * time_s, 0.0, 0.0));
+    let time = (time_s * 1e6).round() as i64;
+    Arc::new(SensorFrame {
+        time_of_validity_us: time,
+        sample_token: format!("{scene}@{time_s}"),
+        frame_token: format!("{scene}@{time_s}"),
+        scene_name: scene.into(),
+        index_in_scene: (time_s * 2.0) as usize,
+        global_from_ego: pose,
+        cameras: vec![CameraImage {
+            channel: CameraChannel::Front,
+            image: Arc::new(image::RgbImage::new(4, 4)),
+            intrinsics: Intrinsics::from_rows(
+                [[2.0, 0.0, 2.0], [0.0, 2.0, 2.0], [0.0, 0.0, 1.0]],
+                4,
+                4,
+            ),
+            ego_from_camera: Pose::IDENTITY,
+            timestamp_us: time,
+            global_from_ego: pose,
+            source_file: String::new(),
+        }],
+        lidar: Arc::new(PointCloud {
+            points: vec![LidarPoint {
+                x: 10.0,
+                y: 0.0,
+                z: 0.0,
+                intensity: 0.0,
+                ring: 0,
+            }],
+            ego_from_lidar: Pose::IDENTITY,
+            timestamp_us: time,
+            global_from_ego: pose,
+            dropped_non_finite: 0,
+            source_file: String::new(),
+        }),
+        action: None,
+    })
+}
+
+/// A forecast from `scene` at `time_s` with one horizon `ahead` frames on, its latent at the
+/// predicted pose `x`.
+fn forecast(scene: &str, time_s: f64, ahead: usize, actions_from: &str, x: f64) -> Forecast {
+    let future_time = time_s + 0.5 * ahead as f64;
+    let mut model = BevFeatures::clone(&latent(scene, future_time));
+    model.meta.global_from_ego = Pose::from_translation(DVec3::new(x, 0.0, 0.0));
+    Forecast {
+        context: latent(scene, time_s).meta.clone(),
+        actions_from: actions_from.into(),
+        future_actions: Vec::new(),
+        horizons: vec![ForecastHorizon {
+            horizon_s: 0.5 * ahead as f64,
+            frames_ahead: ahead,
+            latents: vec![(ForecastMethod::Model, Arc::new(model))],
+        }],
+        sampling_ms: 1.0,
+    }
+}
+
+#[test]
+fn a_replayed_forecast_waits_for_its_logged_future_and_is_rendered_along_it() {
+    let mut views = FutureViews::new(
+        vec![ForecastMethod::Model, ForecastMethod::Oracle],
+        0.05,
+        64,
+    );
+    for k in 0..3 {
+        views.push_frame(frame("a", 0.5 * k as f64));
+    }
+    views.push_forecast(forecast("a", 1.0, 2, "log", 10.0));
+    assert!(
+        views.ready(false).is_empty(),
+        "the frame at 2.0 s has not come yet"
+    );
+    views.push_frame(frame("a", 1.5));
+    views.push_frame(frame("a", 2.0));
+    assert!(views.ready(false).is_empty(), "nor has the oracle's latent");
+    views.push_latent(latent("a", 2.0));
+    let ready = views.ready(false);
+    assert_eq!(ready.len(), 2);
+    let truth = ready[0].truth.as_ref().expect("truth");
+    assert_eq!(truth.time_of_validity_us, 2_000_000);
+    assert!(
+        Arc::ptr_eq(&ready[0].rays, truth),
+        "rendered along the logged frame"
+    );
+    assert_eq!(ready[1].method, ForecastMethod::Oracle);
+    assert_eq!(ready[1].latent.meta.time_of_validity_us, 2_000_000);
+    assert_eq!(ready[0].context.time_of_validity_us, 1_000_000);
+}
+
+#[test]
+fn a_manoeuvre_is_rendered_from_the_predicted_pose_without_truth() {
+    let mut views = FutureViews::new(vec![ForecastMethod::Model], 0.05, 64);
+    views.push_frame(frame("a", 0.0));
+    views.push_forecast(forecast("a", 0.0, 6, "left", 42.0));
+    let ready = views.ready(false);
+    assert_eq!(ready.len(), 1, "nothing to wait for");
+    let view = &ready[0];
+    assert!(view.truth.is_none());
+    assert_eq!(view.rays.lidar.global_from_ego.translation.x, 42.0);
+    assert_eq!(view.rays.cameras[0].global_from_ego.translation.x, 42.0);
+    assert_eq!(view.rays.time_of_validity_us, 3_000_000);
+    assert_eq!(
+        view.rays.lidar.points, view.context.lidar.points,
+        "the rig's own beams"
+    );
+    assert_eq!(views.horizons_without_truth, 1);
+}
+
+#[test]
+fn a_log_that_ends_gives_a_forecast_without_truth_and_the_frames_held_are_bounded() {
+    let mut views = FutureViews::new(vec![ForecastMethod::Model], 0.05, 4);
+    views.push_frame(frame("a", 0.0));
+    views.push_forecast(forecast("a", 0.0, 6, "log", 15.0));
+    assert!(views.ready(false).is_empty());
+    // The next scene begins: scene a's log ended before 3 s.
+    views.push_frame(frame("b", 0.0));
+    let ready = views.ready(false);
+    assert_eq!(ready.len(), 1);
+    assert!(ready[0].truth.is_none());
+    for k in 0..20 {
+        views.push_frame(frame("b", 0.5 * k as f64));
+    }
+    // The context of a later forecast was evicted: counted, not waited for.
+    views.push_forecast(forecast("b", 0.0, 1, "log", 2.5));
+    assert!(views.ready(true).is_empty());
+    assert_eq!(views.contexts_missing, 1);
+}
