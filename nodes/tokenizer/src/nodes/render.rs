@@ -5,13 +5,21 @@
 //! the LiDAR frame, one point per input return off the ego vehicle, with that return's ring),
 //! and `side_by_side`
 //! (input | reconstruction per camera, at the model's image size).
+//!
+//! A forecast is rendered the same way: a `FutureView` on `future` carries its latent and the
+//! frame whose rays it is cast along (the logged future frame, or the rig at the predicted
+//! pose), and comes out on `future` as a `RenderedFuture`, with only the `sensors` asked for.
+//! Connect either `latent` and `frame`, or `future`.
 
 use std::sync::Arc;
 
 use bevworld_graph::{
     Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
 };
-use bevworld_types::{BevFeatures, ImageSet, LidarPoint, NamedImage, PointCloud, SensorFrame};
+use bevworld_types::{
+    BevFeatures, FutureView, ImageSet, LidarPoint, NamedImage, PointCloud, RenderedFuture,
+    SensorFrame,
+};
 use burn::prelude::*;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -33,6 +41,13 @@ pub struct RenderParams {
     /// Rays per pass through the model (bounds memory).
     #[serde(default = "default_chunk")]
     pub chunk: usize,
+    /// What a `future` view is rendered into: `cameras`, `lidar`, or both.
+    #[serde(default = "default_sensors")]
+    pub sensors: Vec<String>,
+}
+
+fn default_sensors() -> Vec<String> {
+    vec!["cameras".into(), "lidar".into()]
 }
 
 fn default_chunk() -> usize {
@@ -47,6 +62,9 @@ pub struct RenderNode {
     samples_evaluated: u64,
     samples_dense: u64,
     warned_hash: bool,
+    /// Which sensors a `future` view is rendered into.
+    future_cameras: bool,
+    future_lidar: bool,
 }
 
 impl RenderNode {
@@ -137,34 +155,20 @@ impl RenderNode {
         rays: &FrameRays,
         out: &mut Outputs,
     ) -> Result<(), NodeError> {
-        let rgb = camera_images(&self.loaded.model, camera, rays, &self.loaded.device);
+        let images = self.images(frame, camera, rays)?;
         let [h, w] = self.loaded.config.image_size;
-        let planes = rgb
-            .into_data()
-            .try_to_vec::<f32>()
-            .map_err(|error| NodeError::item(format!("reading the images back: {error:?}")))?;
-        let mut images = ImageSet::default();
-        let mut side_by_side = ImageSet::default();
-        for (c, input) in frame.cameras.iter().enumerate() {
-            let name = input.channel.name().to_string();
-            let reconstruction = planes_to_image(&planes[c * 3 * h * w..(c + 1) * 3 * h * w], w, h);
-            if out.is_connected("side_by_side") {
+        if out.is_connected("side_by_side") {
+            let mut side_by_side = ImageSet::default();
+            for (input, reconstruction) in frame.cameras.iter().zip(&images.images) {
                 let original = planes_to_image(&image_planes(&input.image, w, h), w, h);
                 let mut pair = image::RgbImage::new(2 * w as u32, h as u32);
                 image::imageops::replace(&mut pair, &original, 0, 0);
-                image::imageops::replace(&mut pair, &reconstruction, w as i64, 0);
+                image::imageops::replace(&mut pair, reconstruction.image.as_ref(), w as i64, 0);
                 side_by_side.images.push(NamedImage {
-                    name: name.clone(),
+                    name: reconstruction.name.clone(),
                     image: Arc::new(pair),
                 });
             }
-            images.images.push(NamedImage {
-                name,
-                image: Arc::new(reconstruction),
-            });
-        }
-
-        if out.is_connected("side_by_side") {
             out.send("side_by_side", side_by_side)?;
         }
         out.send("images", images)
@@ -205,11 +209,16 @@ fn rendered_sweep(frame: &SensorFrame, lidar: &RenderedRays, rays: &FrameRays) -
     }
 }
 
-impl Task for RenderNode {
-    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let (want_images, want_lidar) = self.wanted(out)?;
-        let latent = inputs.get::<BevFeatures>("latent")?;
-        let frame = inputs.get::<SensorFrame>("frame")?;
+impl RenderNode {
+    /// Casts `frame`'s rays into `latent`: the camera renders and the sweep, each only when
+    /// asked for.
+    fn render(
+        &mut self,
+        latent: &BevFeatures,
+        frame: &SensorFrame,
+        want_images: bool,
+        want_lidar: bool,
+    ) -> Result<(Option<RenderedRays>, Option<RenderedRays>, FrameRays), NodeError> {
         let latent_tensor = self.latent_tensor(latent)?;
         let rays = self
             .inputs
@@ -231,6 +240,83 @@ impl Task for RenderNode {
             self.samples_evaluated += part.samples_evaluated;
             self.samples_dense += part.samples_dense;
         }
+        Ok((camera, lidar, rays))
+    }
+
+    /// The camera renders as named images.
+    fn images(
+        &self,
+        frame: &SensorFrame,
+        camera: &RenderedRays,
+        rays: &FrameRays,
+    ) -> Result<ImageSet, NodeError> {
+        let rgb = camera_images(&self.loaded.model, camera, rays, &self.loaded.device);
+        let [h, w] = self.loaded.config.image_size;
+        let planes = rgb
+            .into_data()
+            .try_to_vec::<f32>()
+            .map_err(|error| NodeError::item(format!("reading the images back: {error:?}")))?;
+        Ok(ImageSet {
+            images: frame
+                .cameras
+                .iter()
+                .enumerate()
+                .map(|(c, input)| NamedImage {
+                    name: input.channel.name().to_string(),
+                    image: Arc::new(planes_to_image(
+                        &planes[c * 3 * h * w..(c + 1) * 3 * h * w],
+                        w,
+                        h,
+                    )),
+                })
+                .collect(),
+        })
+    }
+
+    fn render_future(&mut self, view: Arc<FutureView>, out: &mut Outputs) -> Result<(), NodeError> {
+        let (want_images, want_lidar) = (self.future_cameras, self.future_lidar);
+        let (camera, lidar, rays) =
+            self.render(&view.latent, &view.rays, want_images, want_lidar)?;
+        let images = camera
+            .map(|camera| self.images(&view.rays, &camera, &rays))
+            .transpose()?;
+        let lidar = lidar.map(|lidar| rendered_sweep(&view.rays, &lidar, &rays));
+        if let Some(images) = &images
+            && out.is_connected("images")
+        {
+            out.send("images", images.clone())?;
+        }
+        if let Some(lidar) = &lidar
+            && out.is_connected("lidar")
+        {
+            out.send("lidar", lidar.clone())?;
+        }
+        out.send(
+            "future",
+            RenderedFuture {
+                view,
+                images,
+                lidar,
+            },
+        )
+    }
+}
+
+impl Task for RenderNode {
+    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
+        if inputs.message("future").is_some() {
+            let view = inputs.shared::<FutureView>("future")?;
+            return self.render_future(view, out);
+        }
+        let (want_images, want_lidar) = self.wanted(out)?;
+        let (Some(_), Some(_)) = (inputs.message("latent"), inputs.message("frame")) else {
+            return Err(NodeError::fatal(
+                "render: connect both `latent` and `frame` (a reconstruction), or `future` (a forecast)",
+            ));
+        };
+        let latent = inputs.get::<BevFeatures>("latent")?;
+        let frame = inputs.get::<SensorFrame>("frame")?;
+        let (camera, lidar, rays) = self.render(latent, frame, want_images, want_lidar)?;
         if let Some(camera) = camera {
             self.send_images(frame, &camera, &rays, out)?;
         }
@@ -252,17 +338,40 @@ impl Task for RenderNode {
     }
 }
 
+/// Which sensors `sensors` names: (cameras, lidar).
+fn sensors(names: &[String]) -> Result<(bool, bool), ParamError> {
+    let mut wanted = (false, false);
+    for name in names {
+        match name.as_str() {
+            "cameras" => wanted.0 = true,
+            "lidar" => wanted.1 = true,
+            other => {
+                return Err(
+                    ParamError::field("sensors", format!("unknown sensor '{other}'"))
+                        .with_accepted("cameras, lidar"),
+                );
+            }
+        }
+    }
+    if wanted == (false, false) {
+        return Err(ParamError::field("sensors", "is empty").with_accepted("cameras, lidar"));
+    }
+    Ok(wanted)
+}
+
 pub fn register(registry: &mut Registry) {
     registry.register_checked(
         KindSpec::task(
             "render",
             "the BEV tokenizer's decoder: a latent to voxels, ray-cast into the frame's six cameras and LiDAR beams",
         )
-        .input(PortSpec::new::<BevFeatures>("latent"))
-        .input(PortSpec::new::<SensorFrame>("frame"))
+        .input(PortSpec::optional::<BevFeatures>("latent"))
+        .input(PortSpec::optional::<SensorFrame>("frame"))
+        .input(PortSpec::optional::<FutureView>("future"))
         .output(PortSpec::new::<ImageSet>("images"))
         .output(PortSpec::new::<PointCloud>("lidar"))
-        .output(PortSpec::new::<ImageSet>("side_by_side")),
+        .output(PortSpec::new::<ImageSet>("side_by_side"))
+        .output(PortSpec::new::<RenderedFuture>("future")),
         |params: &RenderParams| {
             if let Some(options) = &params.skipping {
                 let problems = options.problems();
@@ -270,14 +379,18 @@ pub fn register(registry: &mut Registry) {
                     return Err(ParamError::field("skipping", first.clone()));
                 }
             }
+            sensors(&params.sensors)?;
             if params.chunk == 0 {
                 return Err(ParamError::field("chunk", "must be at least 1").with_accepted("an integer >= 1"));
             }
             params.model.check()
         },
         |params: RenderParams| {
+            let (future_cameras, future_lidar) = sensors(&params.sensors)?;
             let loaded = params.model.load()?;
             Ok(Node::Task(Box::new(RenderNode {
+                future_cameras,
+                future_lidar,
                 inputs: FrameInputs::new(&loaded.config),
                 loaded,
                 skipping: params.skipping,
