@@ -8,7 +8,7 @@
 //! - a model crate (the tokenizer) depends on the runtime, the types, the blocks and the device,
 //!   never on the data (sensors, pillarization), the metrics or the sinks;
 //! - the data families (sensors, pillarization, sinks, metrics) depend on the runtime, the
-//!   types and the blocks, never on each other or on a model;
+//!   types, the blocks and the plots, never on each other or on a model;
 //! - a model's training crate is where model, data and metrics meet;
 //! - the CLI and the benchmarks may use anything.
 //!
@@ -30,7 +30,10 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("bevworld-training", &["bevworld-types", "bevworld-plot"]),
     ("bevworld-sensors", &["bevworld-graph", "bevworld-types"]),
     ("bevworld-pillarize", &["bevworld-graph", "bevworld-types"]),
-    ("bevworld-sinks", &["bevworld-graph", "bevworld-types"]),
+    (
+        "bevworld-sinks",
+        &["bevworld-graph", "bevworld-types", "bevworld-plot"],
+    ),
     (
         "bevworld-metrics",
         &["bevworld-graph", "bevworld-types", "bevworld-blocks"],
@@ -46,7 +49,12 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ),
     (
         "bevworld-world-model",
-        &["bevworld-types", "bevworld-blocks"],
+        &[
+            "bevworld-graph",
+            "bevworld-types",
+            "bevworld-blocks",
+            "bevworld-device",
+        ],
     ),
     (
         "bevworld-world-model-train",

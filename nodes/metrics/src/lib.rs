@@ -5,6 +5,7 @@
 
 pub mod chamfer;
 pub mod fid;
+pub mod forecast_node;
 pub mod frechet;
 pub mod image;
 pub mod inception;
@@ -18,4 +19,5 @@ pub use image::{ImageMetricError, Planes, psnr, rgb_planes, ssim};
 /// Registers this family's node kinds.
 pub fn register(registry: &mut bevworld_graph::Registry) {
     reconstruction_node::register(registry);
+    forecast_node::register(registry);
 }

@@ -17,7 +17,7 @@ use bevworld_types::{ImageSet, PointCloud, SensorFrame};
 use image::imageops::FilterType;
 use serde::{Deserialize, Serialize};
 
-use crate::chamfer::{Roi, chamfer_in_roi};
+use crate::chamfer::{ChamferResult, Roi, chamfer_in_roi};
 use crate::image::{ImageMetricError, Planes, psnr, rgb_planes, ssim};
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -59,13 +59,9 @@ pub enum ScoreError {
     },
 }
 
-/// Scores a reconstruction against its input frame.
-pub fn score_frame(
-    frame: &SensorFrame,
-    images: &ImageSet,
-    lidar: &PointCloud,
-    roi: &Roi,
-) -> Result<FrameScores, ScoreError> {
+/// Mean camera PSNR and SSIM of `images` against `frame`'s cameras, each resized to the
+/// rendered size.
+pub fn score_images(frame: &SensorFrame, images: &ImageSet) -> Result<(f64, f64), ScoreError> {
     let (mut psnr_sum, mut ssim_sum, mut count) = (0.0, 0.0, 0usize);
     for rendered in &images.images {
         let Some(input) = frame
@@ -103,22 +99,39 @@ pub fn score_frame(
             frame: frame.frame_token.clone(),
         });
     }
-    let to_f64 = |points: Vec<[f32; 3]>| -> Vec<[f64; 3]> {
-        points
-            .into_iter()
-            .map(|p| [p[0].into(), p[1].into(), p[2].into()])
-            .collect()
-    };
-    let chamfer = chamfer_in_roi(
+    Ok((psnr_sum / count as f64, ssim_sum / count as f64))
+}
+
+/// The Chamfer distance of a rendered sweep against `frame`'s returns off the ego body, both
+/// in the ego frame, within `roi`.
+pub fn score_lidar(frame: &SensorFrame, lidar: &PointCloud, roi: &Roi) -> ChamferResult {
+    chamfer_in_roi(
         &to_f64(lidar.ego_points()),
         &to_f64(frame.lidar.scene_ego_points()),
         roi,
-    );
+    )
+}
+
+pub fn to_f64(points: Vec<[f32; 3]>) -> Vec<[f64; 3]> {
+    points
+        .into_iter()
+        .map(|p| [p[0].into(), p[1].into(), p[2].into()])
+        .collect()
+}
+
+/// Scores a reconstruction against its input frame.
+pub fn score_frame(
+    frame: &SensorFrame,
+    images: &ImageSet,
+    lidar: &PointCloud,
+    roi: &Roi,
+) -> Result<FrameScores, ScoreError> {
+    let (psnr_db, ssim) = score_images(frame, images)?;
     Ok(FrameScores {
         frame_token: frame.frame_token.clone(),
-        psnr_db: psnr_sum / count as f64,
-        ssim: ssim_sum / count as f64,
-        chamfer_m2: chamfer.chamfer,
+        psnr_db,
+        ssim,
+        chamfer_m2: score_lidar(frame, lidar, roi).chamfer,
     })
 }
 

@@ -4,6 +4,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod export;
+pub mod forecast_sink;
 pub mod npy;
 pub mod ply;
 pub mod ply_sink;
@@ -15,4 +16,5 @@ pub fn register(registry: &mut bevworld_graph::Registry) {
     png_sink::register(registry);
     ply_sink::register(registry);
     export::register(registry);
+    forecast_sink::register(registry);
 }

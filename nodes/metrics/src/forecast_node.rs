@@ -1,0 +1,405 @@
+//! `forecast_metrics`: scores each rendered forecast against the logged future frame, per
+//! horizon and method, and prints the table at the end of the run.
+//!
+//! - `chamfer`: the rendered sweep (cast along the future sweep's own rays: 4D-Occ's
+//!   protocol) against that sweep's returns off the ego body, in its ego frame, within the ROI.
+//!   A cloud left empty by the ROI is counted (`empty_clouds`) and kept out of the mean, never
+//!   scored as a perfect 0.
+//! - `psnr_db`, `ssim`: the cameras, at the rendered size.
+//! - `latent_l1`: the mean absolute difference from the tokenizer's latent of the true future
+//!   frame (the `oracle`), standardised per channel with the tokenizer's statistics.
+//! - `copy_last`, `ego_warp`: the raw-point baselines on the same frames, as `eval baselines`
+//!   computes them: the context sweep as it is, and moved by the known ego motion.
+//!
+//! Views without a logged future are counted and left out. With `json`, the table is written
+//! in the shape `bevworld eval forecast --json` prints.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use bevworld_graph::{
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+};
+use bevworld_types::{
+    BevFeatures, ForecastMethod, LatentStats, LatentStatsFile, RenderedFuture, SensorFrame,
+};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::chamfer::{Roi, chamfer_in_roi};
+use crate::reconstruction_node::{score_images, score_lidar};
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForecastMetricsParams {
+    /// ROI preset for the Chamfer distance: `4docc` or `vidar`.
+    #[serde(default = "default_roi")]
+    pub roi: String,
+    /// The tokenizer's statistics file, for the standardised latent L1.
+    #[serde(default)]
+    pub latent_stats: Option<PathBuf>,
+    /// Also write the table as JSON here.
+    #[serde(default)]
+    pub json: Option<PathBuf>,
+    /// Print the table at the end of the run.
+    #[serde(default = "yes")]
+    pub print: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn default_roi() -> String {
+    "4docc".into()
+}
+
+/// Sums of one (horizon, method) cell.
+#[derive(Clone, Debug, Default)]
+struct Cell {
+    chamfer: Sum,
+    psnr_db: Sum,
+    ssim: Sum,
+    latent_l1: Sum,
+    /// The Chamfer distance per scene, for its spread over scenes.
+    chamfer_by_scene: BTreeMap<String, Sum>,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Sum {
+    total: f64,
+    count: usize,
+}
+
+impl Sum {
+    fn add(&mut self, value: f64) {
+        self.total += value;
+        self.count += 1;
+    }
+    fn mean(&self) -> Option<f64> {
+        (self.count > 0).then(|| self.total / self.count as f64)
+    }
+}
+
+impl Cell {
+    fn add_chamfer(&mut self, scene: &str, value: f64) {
+        self.chamfer.add(value);
+        self.chamfer_by_scene
+            .entry(scene.to_string())
+            .or_default()
+            .add(value);
+    }
+}
+
+/// A (context, horizon) group's latents, for the latent L1 against the oracle.
+type LatentGroup = BTreeMap<ForecastMethod, Arc<BevFeatures>>;
+
+pub struct ForecastMetrics {
+    roi: Roi,
+    stats: Option<LatentStats>,
+    json: Option<PathBuf>,
+    print: bool,
+    /// By (horizon in µs, frames ahead), then method name (with the raw baselines).
+    cells: BTreeMap<(i64, usize), BTreeMap<String, Cell>>,
+    latents: BTreeMap<(String, i64), LatentGroup>,
+    contexts: std::collections::BTreeSet<String>,
+    sampling_ms: Sum,
+    without_truth: u64,
+    empty_clouds: u64,
+}
+
+fn points_moved(frame: &SensorFrame, to_from_ego: &bevworld_types::Pose) -> Vec<[f64; 3]> {
+    frame
+        .lidar
+        .scene_ego_points()
+        .into_iter()
+        .map(|p| {
+            to_from_ego
+                .transform_point3(DVec3::new(p[0].into(), p[1].into(), p[2].into()))
+                .to_array()
+        })
+        .collect()
+}
+
+impl ForecastMetrics {
+    fn cell(&mut self, horizon_s: f64, frames_ahead: usize, method: &str) -> &mut Cell {
+        self.cells
+            .entry(((horizon_s * 1e6).round() as i64, frames_ahead))
+            .or_default()
+            .entry(method.to_string())
+            .or_default()
+    }
+
+    fn chamfer(&mut self, pred: &[[f64; 3]], truth: &[[f64; 3]]) -> Option<f64> {
+        let result = chamfer_in_roi(pred, truth, &self.roi);
+        if result.pred_points == 0 || result.gt_points == 0 {
+            self.empty_clouds += 1;
+            return None;
+        }
+        Some(result.chamfer)
+    }
+
+    /// The table: per horizon, per method, the means.
+    pub fn table(&self) -> serde_json::Value {
+        let horizons: Vec<serde_json::Value> = self
+            .cells
+            .iter()
+            .map(|(&(horizon_us, frames_ahead), methods)| {
+                let mut row = serde_json::Map::new();
+                row.insert("horizon_s".into(), (horizon_us as f64 * 1e-6).into());
+                row.insert("frames_ahead".into(), frames_ahead.into());
+                // Contexts scored at this horizon: a log's last frames have no truth this far.
+                let scored = methods
+                    .get("model")
+                    .map_or(0, |cell| cell.psnr_db.count.max(cell.chamfer.count));
+                row.insert("contexts".into(), scored.into());
+                for (method, cell) in methods {
+                    let mut scores = serde_json::Map::new();
+                    for (name, sum) in [
+                        ("chamfer", cell.chamfer),
+                        ("psnr_db", cell.psnr_db),
+                        ("ssim", cell.ssim),
+                        ("latent_l1", cell.latent_l1),
+                    ] {
+                        if let Some(mean) = sum.mean() {
+                            scores.insert(name.into(), mean.into());
+                        }
+                    }
+                    let per_scene: Vec<f64> = cell
+                        .chamfer_by_scene
+                        .values()
+                        .filter_map(Sum::mean)
+                        .collect();
+                    if per_scene.len() > 1 {
+                        let n = per_scene.len() as f64;
+                        let mean = per_scene.iter().sum::<f64>() / n;
+                        let variance =
+                            per_scene.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+                        // The spread of the per-scene means: how much the figure moves with the scene.
+                        scores.insert("chamfer_scene_std".into(), variance.sqrt().into());
+                        scores.insert("scenes".into(), per_scene.len().into());
+                    }
+                    row.insert(method.clone(), scores.into());
+                }
+                row.into()
+            })
+            .collect();
+        serde_json::json!({
+            "contexts": self.contexts.len(),
+            "ms_per_forecast": self.sampling_ms.mean(),
+            "views_without_truth": self.without_truth,
+            "empty_clouds": self.empty_clouds,
+            "horizons": horizons,
+        })
+    }
+}
+
+/// The methods of a forecast table, in the order they are shown.
+pub const TABLE_METHODS: [&str; 6] = [
+    "model",
+    "latent_copy_last",
+    "latent_ego_warp",
+    "oracle",
+    "copy_last",
+    "ego_warp",
+];
+
+/// A forecast table (`ForecastMetrics::table`, or `eval forecast --json`) as markdown.
+pub fn markdown_of(table: &serde_json::Value) -> String {
+    let mut text = String::from(
+        "| horizon | method | Chamfer (m²) | PSNR (dB) | SSIM | latent L1 |\n|---|---|---|---|---|---|\n",
+    );
+    let empty = Vec::new();
+    for row in table["horizons"].as_array().unwrap_or(&empty) {
+        let horizon = row["horizon_s"].as_f64().unwrap_or(f64::NAN);
+        for method in TABLE_METHODS {
+            let Some(cell) = row.get(method) else {
+                continue;
+            };
+            let show = |name: &str, digits: usize| {
+                cell.get(name)
+                    .and_then(serde_json::Value::as_f64)
+                    .map_or("—".to_string(), |v| format!("{v:.digits$}"))
+            };
+            text.push_str(&format!(
+                "| +{horizon} s | {method} | {} | {} | {} | {} |\n",
+                show("chamfer", 3),
+                show("psnr_db", 2),
+                show("ssim", 3),
+                show("latent_l1", 3),
+            ));
+        }
+    }
+    text
+}
+
+impl Sink for ForecastMetrics {
+    fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
+        let rendered = inputs.get::<RenderedFuture>("rendered")?;
+        let view = &rendered.view;
+        let (horizon_s, ahead) = (view.horizon_s, view.frames_ahead);
+        let Some(truth) = view.truth.clone() else {
+            self.without_truth += 1;
+            return Ok(());
+        };
+        if view.method == ForecastMethod::Model {
+            self.contexts.insert(view.context.frame_token.clone());
+            self.sampling_ms.add(view.sampling_ms);
+            // The raw-point baselines, once per (context, horizon), in the truth's ego frame.
+            let gt = points_moved(&truth, &bevworld_types::Pose::IDENTITY);
+            let copy_last = points_moved(&view.context, &bevworld_types::Pose::IDENTITY);
+            let truth_from_context =
+                truth.lidar.global_from_ego.inverse() * view.context.lidar.global_from_ego;
+            let ego_warp = points_moved(&view.context, &truth_from_context);
+            let scene = truth.scene_name.clone();
+            if let Some(c) = self.chamfer(&copy_last, &gt) {
+                self.cell(horizon_s, ahead, "copy_last")
+                    .add_chamfer(&scene, c);
+            }
+            if let Some(c) = self.chamfer(&ego_warp, &gt) {
+                self.cell(horizon_s, ahead, "ego_warp")
+                    .add_chamfer(&scene, c);
+            }
+        }
+        let method = view.method.name();
+        if let Some(lidar) = &rendered.lidar {
+            let result = score_lidar(&truth, lidar, &self.roi);
+            if result.pred_points == 0 || result.gt_points == 0 {
+                self.empty_clouds += 1;
+            } else {
+                self.cell(horizon_s, ahead, method)
+                    .chamfer
+                    .add(result.chamfer);
+            }
+        }
+        if let Some(images) = &rendered.images {
+            let (psnr_db, ssim) =
+                score_images(&truth, images).map_err(|e| NodeError::item_from(&e))?;
+            let cell = self.cell(horizon_s, ahead, method);
+            cell.psnr_db.add(psnr_db);
+            cell.ssim.add(ssim);
+        }
+        if self.stats.is_some() {
+            let key = (
+                view.context.frame_token.clone(),
+                (horizon_s * 1e6).round() as i64,
+            );
+            self.latents
+                .entry(key)
+                .or_default()
+                .insert(view.method, Arc::clone(&view.latent));
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), NodeError> {
+        if let Some(stats) = self.stats.clone() {
+            let groups = std::mem::take(&mut self.latents);
+            for ((_, horizon_us), group) in groups {
+                let Some(oracle) = group.get(&ForecastMethod::Oracle) else {
+                    continue;
+                };
+                let mut truth = oracle.data.clone();
+                stats.standardize(&mut truth);
+                for (method, latent) in &group {
+                    let mut values = latent.data.clone();
+                    stats.standardize(&mut values);
+                    let l1 = values
+                        .iter()
+                        .zip(&truth)
+                        .map(|(a, b)| f64::from((a - b).abs()))
+                        .sum::<f64>()
+                        / truth.len().max(1) as f64;
+                    // Frames ahead are the same for every method of a horizon.
+                    let ahead = self
+                        .cells
+                        .keys()
+                        .find(|(h, _)| *h == horizon_us)
+                        .map_or(0, |(_, a)| *a);
+                    self.cell(horizon_us as f64 * 1e-6, ahead, method.name())
+                        .latent_l1
+                        .add(l1);
+                }
+            }
+        }
+        if self.print && self.cells.is_empty() {
+            println!(
+                "forecast_metrics: nothing scored: {} rendered views had no logged future frame (a forecast of a manoeuvre, or a log that ends within the horizon)",
+                self.without_truth
+            );
+        } else if self.print {
+            println!(
+                "\nForecast scores, mean over {} contexts:\n\n{}",
+                self.contexts.len(),
+                markdown_of(&self.table())
+            );
+        }
+        if let Some(path) = &self.json {
+            if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+                std::fs::create_dir_all(parent)
+                    .map_err(|e| NodeError::fatal(format!("creating {}: {e}", parent.display())))?;
+            }
+            let text = serde_json::to_string_pretty(&self.table())
+                .map_err(|e| NodeError::fatal(format!("{}: {e}", path.display())))?;
+            std::fs::write(path, text)
+                .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))?;
+        }
+        Ok(())
+    }
+
+    fn report(&self) -> Figures {
+        let mut figures = Figures::new();
+        figures.insert("contexts".into(), self.contexts.len() as f64);
+        figures.insert("views_without_truth".into(), self.without_truth as f64);
+        figures.insert("empty_clouds".into(), self.empty_clouds as f64);
+        for (&(horizon_us, _), cells) in &self.cells {
+            for (method, cell) in cells {
+                if let Some(c) = cell.chamfer.mean() {
+                    figures.insert(format!("chamfer_{method}_{}s", horizon_us as f64 * 1e-6), c);
+                }
+            }
+        }
+        figures
+    }
+}
+
+fn build(params: &ForecastMetricsParams) -> Result<ForecastMetrics, ParamError> {
+    let roi = Roi::preset(&params.roi).ok_or_else(|| {
+        ParamError::field("roi", format!("unknown preset '{}'", params.roi))
+            .with_accepted("4docc, vidar")
+    })?;
+    let stats = params
+        .latent_stats
+        .as_ref()
+        .map(|path| {
+            LatentStatsFile::load(path)
+                .map(|file| file.stats)
+                .map_err(|error| ParamError::field("latent_stats", error.to_string()))
+        })
+        .transpose()?;
+    Ok(ForecastMetrics {
+        roi,
+        stats,
+        json: params.json.clone(),
+        print: params.print,
+        cells: BTreeMap::new(),
+        latents: BTreeMap::new(),
+        contexts: Default::default(),
+        sampling_ms: Sum::default(),
+        without_truth: 0,
+        empty_clouds: 0,
+    })
+}
+
+pub fn register(registry: &mut Registry) {
+    registry.register_checked(
+        KindSpec::sink(
+            "forecast_metrics",
+            "Chamfer, PSNR, SSIM and latent L1 of rendered forecasts per horizon and method, beside the raw-point baselines",
+        )
+        .input(PortSpec::new::<RenderedFuture>("rendered")),
+        |params: &ForecastMetricsParams| build(params).map(|_| ()),
+        |params: ForecastMetricsParams| Ok(Node::Sink(Box::new(build(&params)?))),
+    );
+}
