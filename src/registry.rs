@@ -10,5 +10,6 @@ pub fn registry() -> Registry {
     bevworld_pillarize::register(&mut registry);
     bevworld_tokenizer::register(&mut registry);
     bevworld_metrics::register(&mut registry);
+    bevworld_world_model::register(&mut registry);
     registry
 }

@@ -23,6 +23,38 @@ pub enum EvalCommand {
     /// The world model's forecasts on held-out synthetic scenes: the standardised latent L1
     /// per horizon beside copy-last and ego-warp, mean and spread over scenes.
     WorldModel(WorldModelEvalArgs),
+    /// Forecasts rendered and scored on every context of a dataset, per horizon, beside the
+    /// latent baselines, the tokenizer's floor (`oracle`) and the raw-point baselines: runs
+    /// the forecast graph with the log's own future actions.
+    Forecast(ForecastEvalArgs),
+}
+
+#[derive(Args)]
+pub struct ForecastEvalArgs {
+    /// The dataset (nuScenes layout, e.g. a `bevworld synth` folder).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The forecast graph to run (its `rollout`, `views`, `files` and `scores` nodes).
+    #[arg(long, default_value = "configs/graphs/forecast.yaml")]
+    pub graph: PathBuf,
+    /// DDIM steps (default: the graph's).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Horizons in seconds, e.g. 0.5,1,3 (default: the graph's).
+    #[arg(long, value_delimiter = ',')]
+    pub horizons: Vec<f64>,
+    #[arg(long, value_enum, default_value = "4docc")]
+    pub roi: RoiName,
+    /// Where the rendered forecasts are written.
+    #[arg(long, default_value = "out/eval-forecast")]
+    pub out: PathBuf,
+    /// Draw the Chamfer distance against the horizon, one line per method.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Print one JSON object: contexts, steps, ms_per_forecast and per horizon each method's
+    /// chamfer, psnr_db, ssim and latent_l1.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -150,6 +182,7 @@ pub struct BaselinesArgs {
 pub fn run(command: &EvalCommand) -> Result<ExitCode> {
     match command {
         EvalCommand::Chamfer(args) => chamfer_command(args),
+        EvalCommand::Forecast(args) => forecast_command(args),
         EvalCommand::Baselines(args) => baselines_command(args),
         EvalCommand::Fid(args) => fid_command(args),
         EvalCommand::WorldModel(args) => world_model(args),
@@ -445,4 +478,96 @@ fn world_model(args: &WorldModelEvalArgs) -> Result<ExitCode> {
         println!("| {name} | {} |", cells.join(" | "));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
+    if !args.data.is_dir() {
+        bail!("--data {}: no such folder", args.data.display());
+    }
+    let scores = args.out.join("scores.json");
+    let roi = match args.roi {
+        RoiName::FourDOcc => "4docc",
+        RoiName::Vidar => "vidar",
+    };
+    let mut set = vec![
+        format!("source.data={}", args.data.display()),
+        format!("files.out={}", args.out.display()),
+        format!("scores.json={}", scores.display()),
+        format!("scores.roi={roi}"),
+        "scores.print=false".into(),
+        "rollout.actions=log".into(),
+        "history.log_future=true".into(),
+    ];
+    if let Some(steps) = args.steps {
+        set.push(format!("rollout.steps={steps}"));
+    }
+    if !args.horizons.is_empty() {
+        let list: Vec<String> = args.horizons.iter().map(f64::to_string).collect();
+        set.push(format!("rollout.horizons=[{}]", list.join(",")));
+    }
+    if scores.exists() {
+        std::fs::remove_file(&scores)
+            .with_context(|| format!("removing the old {}", scores.display()))?;
+    }
+    let (params, _) = crate::commands::graph_run::run_graph(&args.graph, &set)?;
+    let mut table: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&scores).with_context(|| format!("reading {}", scores.display()))?,
+    )
+    .with_context(|| format!("parsing {}", scores.display()))?;
+    table["steps"] = params
+        .iter()
+        .find(|(kind, _)| *kind == "diffusion_rollout")
+        .map_or(serde_json::Value::Null, |(_, p)| p["steps"].clone());
+    if table["contexts"].as_u64() == Some(0) {
+        bail!(
+            "no context of {} has a logged future as long as the horizons: a context needs the model's history (one frame more than its condition frames) and the whole forecast after it",
+            args.data.display()
+        );
+    }
+    if let Some(path) = &args.plot {
+        plot_forecast(path, &table)?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string(&table)?);
+    } else {
+        println!(
+            "{} contexts, {} DDIM step(s), {:.0} ms per forecast\n\n{}",
+            table["contexts"],
+            table["steps"],
+            table["ms_per_forecast"].as_f64().unwrap_or(f64::NAN),
+            bevworld_metrics::forecast_node::markdown_of(&table)
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Chamfer against horizon, one line per method.
+fn plot_forecast(path: &Path, table: &serde_json::Value) -> Result<()> {
+    let empty = Vec::new();
+    let rows = table["horizons"].as_array().unwrap_or(&empty);
+    let lines: Vec<(&str, Vec<(f64, f64)>)> = bevworld_metrics::forecast_node::TABLE_METHODS
+        .iter()
+        .map(|&method| {
+            let points = rows
+                .iter()
+                .filter_map(|row| {
+                    Some((
+                        row["horizon_s"].as_f64()?,
+                        row.get(method)?.get("chamfer")?.as_f64()?,
+                    ))
+                })
+                .collect();
+            (method, points)
+        })
+        .collect();
+    let panel = bevworld_plot::Panel {
+        title: "LiDAR Chamfer (m²) against horizon (s)",
+        x_label: "horizon (s)",
+        log_y: true,
+        series: lines
+            .iter()
+            .map(|(label, points)| bevworld_plot::Series { label, points })
+            .collect(),
+    };
+    bevworld_plot::panels_png(path, &[panel]).with_context(|| format!("drawing {}", path.display()))
 }

@@ -5,12 +5,9 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
-use bevworld_graph::{Override, RunOptions, StopHandle};
+use anyhow::{Context, Result};
 use bevworld_world_model_train::CacheConfig;
 use bevworld_world_model_train::config::{KEYFRAMES_INDEX, SWEEPS_INDEX};
-
-use crate::registry;
 
 /// The graph the caches are exported with.
 pub const EXPORT_GRAPH: &str = "configs/graphs/export_latents.yaml";
@@ -45,28 +42,5 @@ pub fn ensure(cache: &CacheConfig, tokenizer_model: &Path, tokenizer_weights: &P
 }
 
 fn run_export(set: &[String]) -> Result<()> {
-    let overrides = set
-        .iter()
-        .map(|text| Override::parse(text).map_err(anyhow::Error::from))
-        .collect::<Result<Vec<_>>>()?;
-    let graph =
-        match bevworld_graph::load(Path::new(EXPORT_GRAPH), &registry::registry(), &overrides) {
-            Ok(graph) => graph,
-            Err(diagnostics) => bail!("{diagnostics}"),
-        };
-    let graph = match graph.build() {
-        Ok(graph) => graph,
-        Err(diagnostics) => bail!("{diagnostics}"),
-    };
-    let outcome = bevworld_graph::run(
-        graph,
-        RunOptions {
-            stop: StopHandle::new(),
-            observer: None,
-        },
-    );
-    if let Some(error) = outcome.error {
-        bail!("{EXPORT_GRAPH}: {error}");
-    }
-    Ok(())
+    crate::commands::graph_run::run_graph(Path::new(EXPORT_GRAPH), set).map(|_| ())
 }

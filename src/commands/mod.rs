@@ -1,6 +1,7 @@
 //! Subcommands that are tools rather than graphs.
 
 pub mod eval;
+pub mod graph_run;
 pub mod inspect;
 pub mod latent_cache;
 pub mod synth;

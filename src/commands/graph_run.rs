@@ -1,0 +1,49 @@
+//! Running a graph file from a command, with `--set` overrides, quietly: what the commands
+//! that are built on graphs (`train world-model`'s caches, `eval forecast`) share.
+
+use std::path::Path;
+
+use anyhow::{Result, bail};
+use bevworld_graph::{Override, RunOptions, StopHandle};
+
+use crate::registry;
+
+/// Validates, builds and runs `graph` with `set` (`node.key=value`), to the end.
+/// Each node's kind and parameters as resolved (defaults filled in).
+pub type ResolvedParams = Vec<(&'static str, serde_json::Value)>;
+
+/// Runs the graph; returns its nodes' resolved parameters and the run's report.
+pub fn run_graph(
+    graph: &Path,
+    set: &[String],
+) -> Result<(ResolvedParams, bevworld_graph::RunReport)> {
+    let overrides = set
+        .iter()
+        .map(|text| Override::parse(text).map_err(anyhow::Error::from))
+        .collect::<Result<Vec<_>>>()?;
+    let validated = match bevworld_graph::load(graph, &registry::registry(), &overrides) {
+        Ok(validated) => validated,
+        Err(diagnostics) => bail!("{diagnostics}"),
+    };
+    let params: ResolvedParams = validated
+        .spec
+        .nodes
+        .iter()
+        .map(|n| (n.kind.name, n.params.clone()))
+        .collect();
+    let built = match validated.build() {
+        Ok(built) => built,
+        Err(diagnostics) => bail!("{diagnostics}"),
+    };
+    let outcome = bevworld_graph::run(
+        built,
+        RunOptions {
+            stop: StopHandle::new(),
+            observer: None,
+        },
+    );
+    if let Some(error) = outcome.error {
+        bail!("{}: {error}", graph.display());
+    }
+    Ok((params, outcome.report))
+}
