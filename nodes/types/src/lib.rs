@@ -17,6 +17,7 @@ pub mod forecast;
 pub mod frame;
 pub mod latent_stats;
 pub mod latent_stats_file;
+pub mod manoeuvre;
 pub mod pillars;
 pub mod point_cloud;
 pub mod pose;
@@ -33,6 +34,7 @@ pub use forecast::{
 pub use frame::SensorFrame;
 pub use latent_stats::{LatentStats, LatentStatsAccumulator, LatentStatsError};
 pub use latent_stats_file::{LatentStatsFile, StatsFileError, stats_path_for};
+pub use manoeuvre::Manoeuvre;
 pub use pillars::{GridError, PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 pub use point_cloud::{LidarPoint, PointCloud};
 pub use pose::{Pose, pose_from_translation_quaternion};

@@ -12,12 +12,13 @@
 
 pub mod actions;
 pub mod block;
+/// The manoeuvres live with the other shared types, since the synthetic world drives them too.
+pub use bevworld_types::manoeuvre;
 pub mod condition;
 pub mod config;
 pub mod ddim;
 pub mod ego_warp;
 pub mod forecast;
-pub mod manoeuvre;
 pub mod model;
 pub mod nodes;
 pub mod patch;

@@ -90,7 +90,7 @@ impl FutureActions {
     pub fn name(&self) -> String {
         match self {
             FutureActions::Log => "log".into(),
-            FutureActions::Manoeuvre(m) => format!("{m:?}").to_lowercase(),
+            FutureActions::Manoeuvre(m) => m.name().to_string(),
             FutureActions::List(_) => "list".into(),
         }
     }

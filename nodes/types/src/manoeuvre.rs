@@ -1,13 +1,15 @@
 //! The ego's future actions when the log has none: a manoeuvre from the current motion, each
 //! defined once, here. A forecast conditioned on `left` and on `right` from one context must
-//! differ, and these are what a user asks for.
+//! differ, and these are what a user asks for. The world model's rollout turns them into
+//! actions; the synthetic world drives them (`bevworld synth --branch-at`), so that a forecast
+//! of each has its ground truth.
 
-use bevworld_types::EgoAction;
-use bevworld_types::action::wrap_angle;
 use serde::{Deserialize, Serialize};
 
+use crate::action::{EgoAction, wrap_angle};
+
 /// What the ego does over the forecast.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Manoeuvre {
     /// Constant speed and yaw rate.
@@ -44,18 +46,8 @@ impl Manoeuvre {
     /// (its speed and yaw rate).
     pub fn actions(self, current: &EgoAction, frames: usize, dt_s: f64) -> Vec<EgoAction> {
         let mut speed = current.speed_mps.max(0.0);
-        let yaw_rate = match self {
-            Manoeuvre::Keep => current.yaw_rate_rps,
-            Manoeuvre::Left => TURN_RATE_RPS,
-            Manoeuvre::Right => -TURN_RATE_RPS,
-            Manoeuvre::Faster | Manoeuvre::Slower | Manoeuvre::Stop => 0.0,
-        };
-        let acceleration = match self {
-            Manoeuvre::Faster => ACCELERATION_MPS2,
-            Manoeuvre::Slower => -DECELERATION_MPS2,
-            Manoeuvre::Stop => -STOP_DECELERATION_MPS2,
-            _ => 0.0,
-        };
+        let yaw_rate = self.yaw_rate(current.yaw_rate_rps);
+        let acceleration = self.acceleration();
         (0..frames)
             .map(|_| {
                 let end_speed = (speed + acceleration * dt_s).max(0.0);
@@ -69,7 +61,39 @@ impl Manoeuvre {
     pub fn parse(text: &str) -> Option<Self> {
         Self::ALL
             .into_iter()
-            .find(|m| format!("{m:?}").eq_ignore_ascii_case(text))
+            .find(|m| m.name().eq_ignore_ascii_case(text))
+    }
+
+    /// The name users write: `keep`, `left`, …
+    pub fn name(self) -> &'static str {
+        match self {
+            Manoeuvre::Keep => "keep",
+            Manoeuvre::Left => "left",
+            Manoeuvre::Right => "right",
+            Manoeuvre::Faster => "faster",
+            Manoeuvre::Slower => "slower",
+            Manoeuvre::Stop => "stop",
+        }
+    }
+
+    /// Its yaw rate, for a driven ego whose current yaw rate is `current`.
+    pub fn yaw_rate(self, current: f64) -> f64 {
+        match self {
+            Manoeuvre::Keep => current,
+            Manoeuvre::Left => TURN_RATE_RPS,
+            Manoeuvre::Right => -TURN_RATE_RPS,
+            Manoeuvre::Faster | Manoeuvre::Slower | Manoeuvre::Stop => 0.0,
+        }
+    }
+
+    /// Its longitudinal acceleration, m/s² (speed never goes below 0).
+    pub fn acceleration(self) -> f64 {
+        match self {
+            Manoeuvre::Faster => ACCELERATION_MPS2,
+            Manoeuvre::Slower => -DECELERATION_MPS2,
+            Manoeuvre::Stop => -STOP_DECELERATION_MPS2,
+            Manoeuvre::Keep | Manoeuvre::Left | Manoeuvre::Right => 0.0,
+        }
     }
 }
 
@@ -97,7 +121,7 @@ pub fn constant_turn(speed: f64, yaw_rate: f64, dt_s: f64) -> EgoAction {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use bevworld_types::Pose;
+    use crate::Pose;
     use glam::{DQuat, DVec3};
 
     #[test]
