@@ -6,7 +6,8 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use bevworld_sensors::source::parse_size;
 use bevworld_sensors::synth::render::LidarSpec;
-use bevworld_sensors::synth::{ImageEncoding, SynthConfig, generate};
+use bevworld_sensors::synth::{Branch, ImageEncoding, SynthConfig, generate};
+use bevworld_types::Manoeuvre;
 use clap::Args;
 
 #[derive(Args)]
@@ -43,6 +44,18 @@ pub struct SynthArgs {
     /// Replace an existing dataset in OUT.
     #[arg(long)]
     pub overwrite: bool,
+    /// Branch every scene at this time (seconds): instead of the scene, one scene per
+    /// manoeuvre, named `<scene>-<manoeuvre>`, identical up to here.
+    #[arg(long)]
+    pub branch_at: Option<f64>,
+    /// The manoeuvres of `--branch-at`: keep, left, right, faster, slower, stop.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "keep,left,right,faster,slower",
+        requires = "branch_at"
+    )]
+    pub maneuvers: Vec<String>,
 }
 
 pub fn run(args: &SynthArgs) -> Result<ExitCode> {
@@ -76,6 +89,23 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
             .map_or(ImageEncoding::Png, |quality| ImageEncoding::Jpeg {
                 quality,
             }),
+        branch: match args.branch_at {
+            None => None,
+            Some(at_s) => Some(Branch {
+                at_s,
+                manoeuvres: args
+                    .maneuvers
+                    .iter()
+                    .map(|name| {
+                        Manoeuvre::parse(name).with_context(|| {
+                            format!(
+                                "--maneuvers: unknown manoeuvre '{name}' (known: keep, left, right, faster, slower, stop)"
+                            )
+                        })
+                    })
+                    .collect::<Result<_>>()?,
+            }),
+        },
         ..Default::default()
     };
     // The library refuses what it cannot generate; say it here in the flags' words, before
@@ -83,7 +113,7 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     let problems = config.problems();
     if !problems.is_empty() {
         bail!(
-            "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --jpeg)",
+            "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --jpeg, --branch-at, --maneuvers)",
             problems.join("; ")
         );
     }

@@ -385,3 +385,59 @@ fn a_config_that_cannot_be_generated_is_refused_naming_its_fields() {
     };
     assert!(edge.problems().is_empty(), "{:?}", edge.problems());
 }
+
+#[test]
+fn a_branch_drives_its_manoeuvre_from_the_shared_state() {
+    use bevworld_types::Manoeuvre;
+    use bevworld_types::manoeuvre::{STOP_DECELERATION_MPS2, TURN_RATE_RPS};
+
+    let plain = SceneWorld::new(9740, 4.0, 0);
+    let branch_tick = 12; // 1 s at 12 Hz
+    for manoeuvre in Manoeuvre::ALL {
+        let branched = SceneWorld::new(9740, 4.0, 0).branched(1.0, manoeuvre);
+        // The past is the scene's own.
+        assert_eq!(
+            branched.states[..=branch_tick],
+            plain.states[..=branch_tick]
+        );
+        assert_eq!(
+            branched.controls[..branch_tick],
+            plain.controls[..branch_tick]
+        );
+        let start = branched.states[branch_tick];
+        let end = branched.states[branched.ticks - 1];
+        let seconds = (branched.ticks - 1 - branch_tick) as f64 / 12.0;
+        let turned = end.yaw - start.yaw;
+        match manoeuvre {
+            Manoeuvre::Left | Manoeuvre::Right => {
+                let sign = if manoeuvre == Manoeuvre::Left {
+                    1.0
+                } else {
+                    -1.0
+                };
+                // The steering is set for the yaw rate at each tick's speed.
+                assert!(
+                    (turned - sign * TURN_RATE_RPS * seconds).abs() < 0.05,
+                    "{manoeuvre:?}: {turned}"
+                );
+                assert!((end.speed - start.speed).abs() < 1e-9);
+            }
+            Manoeuvre::Stop => {
+                assert_eq!(
+                    end.speed, 0.0,
+                    "stopped {seconds} s after braking at {STOP_DECELERATION_MPS2} m/s² from {}",
+                    start.speed
+                );
+                assert!(turned.abs() < 1e-9);
+            }
+            Manoeuvre::Faster => assert!(end.speed > start.speed + 1.4 * seconds),
+            Manoeuvre::Slower => assert!(end.speed < start.speed),
+            Manoeuvre::Keep => assert!((end.speed - start.speed).abs() < 1e-9),
+        }
+        assert!(
+            branched.controls[branch_tick..]
+                .iter()
+                .all(|c| c.manoeuvre == format!("branch_{}", manoeuvre.name()))
+        );
+    }
+}

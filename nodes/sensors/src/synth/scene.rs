@@ -2,11 +2,11 @@
 
 use glam::{DQuat, DVec2, DVec3};
 
-use bevworld_types::Pose;
+use bevworld_types::{Manoeuvre, Pose};
 
 use super::render::Snapshot;
 use super::rng::Rng;
-use super::traffic::{Agent, BicycleState, EgoControl, EgoScript, spawn_agents};
+use super::traffic::{Agent, BicycleState, EgoControl, EgoScript, WHEELBASE, spawn_agents};
 use super::world::{City, RoadSpec, Solid, VehicleBody};
 
 /// Sensor ticks per second (all sensors), and keyframes every this many ticks (2 Hz).
@@ -54,6 +54,46 @@ impl SceneWorld {
             t0_us,
             ticks,
         }
+    }
+
+    /// The same scene, but from the tick at `at_s` seconds on the ego drives `manoeuvre`
+    /// through the bicycle model, from the speed and steering it had there: `keep` holds the
+    /// steering and the speed (a constant yaw rate), `left` and `right` steer for the
+    /// manoeuvre's yaw rate at the current speed, `faster`, `slower` and `stop` go straight at
+    /// their acceleration (never below standstill). Everything before the branch, and the
+    /// world and its traffic, stay as they were.
+    pub fn branched(mut self, at_s: f64, manoeuvre: Manoeuvre) -> Self {
+        let start = ((at_s * RATE_HZ).round() as usize).min(self.ticks);
+        let held_steering = start
+            .checked_sub(1)
+            .and_then(|k| self.controls.get(k))
+            .map_or(0.0, |c| c.steering);
+        let dt = 1.0 / RATE_HZ;
+        for k in start..self.ticks {
+            let state = self.states[k];
+            let steering = match manoeuvre {
+                Manoeuvre::Keep => held_steering,
+                Manoeuvre::Left | Manoeuvre::Right => {
+                    let yaw_rate = manoeuvre.yaw_rate(0.0);
+                    (yaw_rate * WHEELBASE / state.speed.max(0.5))
+                        .atan()
+                        .clamp(-0.6, 0.6)
+                }
+                Manoeuvre::Faster | Manoeuvre::Slower | Manoeuvre::Stop => 0.0,
+            };
+            let acceleration = manoeuvre.acceleration();
+            self.controls[k] = EgoControl {
+                timestamp: self.controls[k].timestamp,
+                speed: state.speed,
+                acceleration,
+                steering,
+                manoeuvre: format!("branch_{}", manoeuvre.name()),
+            };
+            if k + 1 < self.ticks {
+                self.states[k + 1] = state.advance(acceleration, steering, dt);
+            }
+        }
+        self
     }
 
     pub fn tick_time_us(&self, tick: usize) -> i64 {

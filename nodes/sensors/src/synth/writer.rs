@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::DQuat;
 use serde_json::json;
 
-use bevworld_types::{CameraChannel, Pose};
+use bevworld_types::{CameraChannel, Manoeuvre, Pose};
 
 use super::render::{LidarSpec, render_camera, scan_lidar};
 use super::rig::{CAMERAS, LIDAR_ROTATION, LIDAR_TRANSLATION, ego_from_lidar};
@@ -45,6 +45,16 @@ pub struct SynthConfig {
     pub image_encoding: ImageEncoding,
     /// Camera far plane, m.
     pub far: f64,
+    /// Instead of each scene, one scene per manoeuvre, branched at this time.
+    pub branch: Option<Branch>,
+}
+
+/// Branches of every scene: up to `at_s` seconds the ego drives its script; from there on,
+/// in each branch, it drives one manoeuvre through the bicycle model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Branch {
+    pub at_s: f64,
+    pub manoeuvres: Vec<Manoeuvre>,
 }
 
 impl Default for SynthConfig {
@@ -59,6 +69,7 @@ impl Default for SynthConfig {
             agents: 14,
             image_encoding: ImageEncoding::Png,
             far: 250.0,
+            branch: None,
         }
     }
 }
@@ -110,7 +121,41 @@ impl SynthConfig {
         {
             problems.push(format!("jpeg quality: {quality} (accepted: 1 to 100)"));
         }
+        if let Some(branch) = &self.branch {
+            if !(branch.at_s.is_finite() && branch.at_s > 0.0 && branch.at_s < self.seconds) {
+                problems.push(format!(
+                    "branch at: {} s (accepted: after 0 and before the scene's end, {} s)",
+                    branch.at_s, self.seconds
+                ));
+            }
+            if branch.manoeuvres.is_empty() {
+                problems.push("manoeuvres: none (accepted: one or more of keep, left, right, faster, slower, stop)".into());
+            }
+            let mut seen = Vec::new();
+            for m in &branch.manoeuvres {
+                if seen.contains(m) {
+                    problems.push(format!("manoeuvres: {} named twice", m.name()));
+                }
+                seen.push(*m);
+            }
+        }
         problems
+    }
+
+    /// The scenes to write: each seed, or each seed's branches, in order.
+    pub fn scene_variants(&self) -> Vec<(u64, Option<(f64, Manoeuvre)>)> {
+        let seeds = (0..self.scenes as u64).map(|k| self.seed.saturating_add(k));
+        match &self.branch {
+            None => seeds.map(|seed| (seed, None)).collect(),
+            Some(branch) => seeds
+                .flat_map(|seed| {
+                    branch
+                        .manoeuvres
+                        .iter()
+                        .map(move |m| (seed, Some((branch.at_s, *m))))
+                })
+                .collect(),
+        }
     }
 }
 
@@ -159,6 +204,16 @@ fn rotation_wxyz(pose: &Pose) -> [f64; 4] {
     [q.w, q.x, q.y, q.z]
 }
 
+/// The token key of a branch of the scene made from `seed`: its own, so that no table row of
+/// one branch is mistaken for another's.
+fn branch_key(seed: u64, manoeuvre: Manoeuvre) -> u64 {
+    let index = Manoeuvre::ALL
+        .iter()
+        .position(|m| *m == manoeuvre)
+        .unwrap_or(0) as u64;
+    seed ^ ((index + 1) << 56) ^ 0xB4A2_C000_0000_0000
+}
+
 /// The name of the scene made from `seed` (its `scene.json` name and log file).
 pub fn scene_name(seed: u64) -> String {
     format!("synth-{seed:06}")
@@ -197,19 +252,30 @@ pub fn generate(
         });
     }
     let ticks_per_scene = ((config.seconds * super::scene::RATE_HZ).round() as usize).max(1);
-    let total = ticks_per_scene * config.scenes;
+    let total = ticks_per_scene * config.scene_variants().len();
     let mut summary = SynthSummary {
-        scenes: config.scenes,
+        scenes: config.scene_variants().len(),
         ..Default::default()
     };
     let mut annotation_chain: BTreeMap<String, Vec<usize>> = BTreeMap::new();
     let category = token(0, "category", 0);
 
-    for scene_index in 0..config.scenes {
-        let seed = config.seed + scene_index as u64;
-        let world = SceneWorld::new(seed, config.seconds, config.agents);
-        let name = scene_name(seed);
-        let log_token = token(seed, "log", 0);
+    for (seed, branch) in config.scene_variants() {
+        // A branch shares the world, the traffic, the LiDAR noise and the drive up to the
+        // branch with its scene, but not its tokens, so that the tables keep scenes apart.
+        let (key, name, world) = match branch {
+            None => (
+                seed,
+                scene_name(seed),
+                SceneWorld::new(seed, config.seconds, config.agents),
+            ),
+            Some((at_s, manoeuvre)) => (
+                branch_key(seed, manoeuvre),
+                format!("{}-{}", scene_name(seed), manoeuvre.name()),
+                SceneWorld::new(seed, config.seconds, config.agents).branched(at_s, manoeuvre),
+            ),
+        };
+        let log_token = token(key, "log", 0);
         tables.log.push(Log {
             token: log_token.clone(),
             logfile: name.clone(),
@@ -219,7 +285,7 @@ pub fn generate(
         });
         // One calibration per sensor per scene, as nuScenes has one per log.
         let calib_tokens: Vec<String> = (0..channels.len())
-            .map(|i| token(seed, "calibrated_sensor", i as u64))
+            .map(|i| token(key, "calibrated_sensor", i as u64))
             .collect();
         for (i, mount) in CAMERAS.iter().enumerate() {
             let k = mount.intrinsics(config.camera_width, config.camera_height);
@@ -248,9 +314,9 @@ pub fn generate(
             .collect();
         let sample_tokens: Vec<String> = keyframe_ticks
             .iter()
-            .map(|&k| token(seed, "sample", k as u64))
+            .map(|&k| token(key, "sample", k as u64))
             .collect();
-        let scene_token = token(seed, "scene", 0);
+        let scene_token = token(key, "scene", 0);
         for (i, &tick) in keyframe_ticks.iter().enumerate() {
             tables.sample.push(Sample {
                 token: sample_tokens[i].clone(),
@@ -270,8 +336,12 @@ pub fn generate(
             nbr_samples: keyframe_ticks.len(),
             name: name.clone(),
             description: format!(
-                "synthetic town drive, seed {seed}, turns {:?}",
-                world.script.turns
+                "synthetic town drive, seed {seed}, turns {:?}{}",
+                world.script.turns,
+                branch.map_or(String::new(), |(at_s, m)| format!(
+                    ", branched at {at_s} s: {}",
+                    m.name()
+                ))
             ),
             first_sample_token: sample_tokens.first().cloned().unwrap_or_default(),
             last_sample_token: sample_tokens.last().cloned().unwrap_or_default(),
@@ -315,7 +385,7 @@ pub fn generate(
                 push_sample_data(
                     &mut tables,
                     &mut previous_data[i],
-                    seed,
+                    key,
                     &sample_token,
                     &calib_tokens[i],
                     time,
@@ -344,7 +414,7 @@ pub fn generate(
             push_sample_data(
                 &mut tables,
                 &mut previous_data[6],
-                seed,
+                key,
                 &sample_token,
                 &calib_tokens[6],
                 lidar_time,
@@ -363,12 +433,12 @@ pub fn generate(
                     if (body.center - ego).length() > 60.0 || (body.center - ego).length() < 3.0 {
                         continue;
                     }
-                    let instance_token = token(seed, "instance", u64::from(instance));
+                    let instance_token = token(key, "instance", u64::from(instance));
                     let index = tables.sample_annotation.len();
                     let num_lidar_pts = ids.iter().filter(|&&id| id == instance).count() as i64;
                     tables.sample_annotation.push(SampleAnnotation {
                         token: token(
-                            seed,
+                            key,
                             "sample_annotation",
                             index as u64 * 7919 + u64::from(instance),
                         ),
