@@ -27,6 +27,9 @@ pub enum EvalCommand {
     /// latent baselines, the tokenizer's floor (`oracle`) and the raw-point baselines: runs
     /// the forecast graph with the log's own future actions.
     Forecast(ForecastEvalArgs),
+    /// Whether forecasts follow their actions: on a branched synthetic dataset, each
+    /// manoeuvre's forecast against every manoeuvre's ground truth.
+    Control(crate::commands::control::ControlEvalArgs),
 }
 
 #[derive(Args)]
@@ -183,6 +186,7 @@ pub fn run(command: &EvalCommand) -> Result<ExitCode> {
     match command {
         EvalCommand::Chamfer(args) => chamfer_command(args),
         EvalCommand::Forecast(args) => forecast_command(args),
+        EvalCommand::Control(args) => crate::commands::control::run(args),
         EvalCommand::Baselines(args) => baselines_command(args),
         EvalCommand::Fid(args) => fid_command(args),
         EvalCommand::WorldModel(args) => world_model(args),

@@ -1,5 +1,6 @@
 //! Subcommands that are tools rather than graphs.
 
+pub mod control;
 pub mod eval;
 pub mod graph_run;
 pub mod inspect;
