@@ -269,8 +269,7 @@ impl Sink for ForecastMetrics {
                 self.empty_clouds += 1;
             } else {
                 self.cell(horizon_s, ahead, method)
-                    .chamfer
-                    .add(result.chamfer);
+                    .add_chamfer(&truth.scene_name, result.chamfer);
             }
         }
         if let Some(images) = &rendered.images {

@@ -462,6 +462,10 @@ fn a_log_that_ends_gives_a_forecast_without_truth_and_the_frames_held_are_bounde
     let ready = views.ready(false);
     assert_eq!(ready.len(), 1);
     assert!(ready[0].truth.is_none());
+    assert_eq!(
+        views.horizons_without_truth, 1,
+        "the log ended within the horizon"
+    );
     for k in 0..20 {
         views.push_frame(frame("b", 0.5 * k as f64));
     }

@@ -147,6 +147,7 @@ pub struct FutureViews {
     latents: Held<BevFeatures>,
     pending: VecDeque<Forecast>,
     pub views: u64,
+    /// Horizons of forecasts along the log that the log does not reach.
     pub horizons_without_truth: u64,
     pub contexts_missing: u64,
 }
@@ -255,7 +256,9 @@ impl FutureViews {
         let mut views = Vec::new();
         let mut without_truth = 0;
         for (horizon, truth, oracle) in settled {
-            if truth.is_none() {
+            // A manoeuvre has no truth by design; a replay whose log ends too soon is worth
+            // saying.
+            if truth.is_none() && forecast.follows_log() {
                 without_truth += 1;
             }
             for &method in &self.methods {
@@ -331,7 +334,7 @@ impl Task for FutureViewsNode {
         if self.views.horizons_without_truth > 0 {
             tracing::warn!(
                 horizons = self.views.horizons_without_truth,
-                "forecast horizons without a logged future frame to score against: rendered from the predicted pose, not scored"
+                "replayed forecast horizons past the end of the log: rendered from the predicted pose, not scored"
             );
         }
         Self::send(views, out)
