@@ -10,11 +10,20 @@ use crate::schema::PacingDecl;
 pub enum PacingError {
     #[error("pacing takes either speed or rate_hz, not both")]
     Both,
-    #[error("pacing speed must be a finite number >= 0, got {0}")]
+    #[error(
+        "pacing speed must be 0 (as fast as possible) or from {MIN_SPEED} to {MAX_SPEED}, got {0}"
+    )]
     Speed(f64),
-    #[error("pacing rate_hz must be a finite number > 0, got {0}")]
+    #[error("pacing rate_hz must be from {MIN_RATE_HZ} to {MAX_RATE_HZ}, got {0}")]
     Rate(f64),
 }
+
+/// The slowest and fastest fixed rates, so that every deadline is a time the clock can hold.
+pub const MIN_RATE_HZ: f64 = 1e-6;
+pub const MAX_RATE_HZ: f64 = 1e9;
+/// The slowest and fastest replay speeds.
+pub const MIN_SPEED: f64 = 1e-6;
+pub const MAX_SPEED: f64 = 1e6;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Pacing {
@@ -30,12 +39,14 @@ impl Pacing {
     pub fn from_decl(decl: &PacingDecl) -> Result<Self, PacingError> {
         match (decl.speed, decl.rate_hz) {
             (Some(_), Some(_)) => Err(PacingError::Both),
-            (Some(speed), None) if !(speed.is_finite() && speed >= 0.0) => {
+            (Some(0.0), None) => Ok(Self::Unpaced),
+            (Some(speed), None) if !(MIN_SPEED..=MAX_SPEED).contains(&speed) => {
                 Err(PacingError::Speed(speed))
             }
-            (Some(0.0), None) => Ok(Self::Unpaced),
             (Some(speed), None) => Ok(Self::Recorded { speed }),
-            (None, Some(rate)) if !(rate.is_finite() && rate > 0.0) => Err(PacingError::Rate(rate)),
+            (None, Some(rate)) if !(MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate) => {
+                Err(PacingError::Rate(rate))
+            }
             (None, Some(rate_hz)) => Ok(Self::Fixed { rate_hz }),
             (None, None) => Ok(Self::Unpaced),
         }

@@ -203,7 +203,24 @@ struct Finder<'a> {
     found: Vec<Diagnostic>,
 }
 
+/// The most messages an edge may queue: a bound on a graph's memory, far above what any
+/// graph needs (a queue holds shared payloads, but each can be a frame of six images).
+pub const MAX_CAPACITY: usize = 100_000;
+
 impl Finder<'_> {
+    /// A problem at a line found by other means than the parser's spans.
+    fn at_line(&mut self, line: Option<usize>, message: impl Into<String>, hint: Option<String>) {
+        self.found.push(Diagnostic {
+            file: self.file.to_string(),
+            position: line.map(|line| Position {
+                line: line as u64,
+                column: 1,
+            }),
+            message: message.into(),
+            hint,
+        });
+    }
+
     fn at(&mut self, location: Option<Location>, message: impl Into<String>, hint: Option<String>) {
         let position = location
             .filter(|l| *l != Location::UNKNOWN)
@@ -275,6 +292,18 @@ pub fn validate(
             return Err(Diagnostics(finder.found));
         }
     };
+    let capacity = parsed.settings.default_capacity;
+    if !(1..=MAX_CAPACITY).contains(&capacity) {
+        let line = text
+            .lines()
+            .position(|l| l.contains("default_capacity"))
+            .map(|i| i + 1);
+        finder.at_line(
+            line,
+            format!("settings.default_capacity {capacity} is out of range"),
+            Some(format!("accepted: 1 to {MAX_CAPACITY} messages")),
+        );
+    }
     let declared = DeclaredNodes::index(&mut finder, &parsed);
     let mut nodes = Vec::new();
     for (index, decl) in parsed.nodes.iter().enumerate() {
@@ -429,20 +458,31 @@ fn check_node(
         }
     }
     let mut pacing_decl = decl.pacing.as_ref().map(|p| p.value).unwrap_or_default();
+    let mut pacing_overridden = false;
     let mut on_error = decl.on_error.as_ref().map(|o| o.value).unwrap_or_default();
     for over in overrides.iter().filter(|o| o.node == id) {
         match over.key.as_str() {
-            "pacing.speed" => {
-                pacing_decl = crate::schema::PacingDecl {
-                    speed: over.value.as_f64(),
-                    rate_hz: None,
-                }
-            }
-            "pacing.rate_hz" => {
-                pacing_decl = crate::schema::PacingDecl {
-                    speed: None,
-                    rate_hz: over.value.as_f64(),
-                }
+            key @ ("pacing.speed" | "pacing.rate_hz") => {
+                let Some(value) = over.value.as_f64() else {
+                    finder.at(
+                        None,
+                        format!("--set {id}.{key}: '{}' is not a number", over.value),
+                        Some("e.g. --set source.pacing.rate_hz=12".into()),
+                    );
+                    continue;
+                };
+                pacing_overridden = true;
+                pacing_decl = if key == "pacing.speed" {
+                    crate::schema::PacingDecl {
+                        speed: Some(value),
+                        rate_hz: None,
+                    }
+                } else {
+                    crate::schema::PacingDecl {
+                        speed: None,
+                        rate_hz: Some(value),
+                    }
+                };
             }
             "on_error" => match serde_json::from_value::<OnError>(over.value.clone()) {
                 Ok(value) => on_error = value,
@@ -470,6 +510,16 @@ fn check_node(
             Pacing::Unpaced
         }
     };
+    if pacing_overridden && kind.role != Role::Source {
+        finder.at(
+            None,
+            format!(
+                "--set {id}.pacing: node '{id}' is a {}, and only sources are paced",
+                kind.role.as_str()
+            ),
+            Some("set pacing on the graph's source, e.g. --set source.pacing.rate_hz=12".into()),
+        );
+    }
     if decl.pacing.is_some() && kind.role != Role::Source {
         finder.at(
             decl.pacing.as_ref().and_then(loc),
@@ -600,11 +650,14 @@ fn check_edges(
             .as_ref()
             .map(|c| c.value)
             .unwrap_or(parsed.settings.default_capacity);
-        if capacity_requested == 0 {
+        // A default capacity out of range is reported once, for the setting.
+        if let Some(capacity) = &edge.capacity
+            && !(1..=MAX_CAPACITY).contains(&capacity.value)
+        {
             finder.at(
-                edge.capacity.as_ref().and_then(loc),
-                "edge capacity must be at least 1",
-                None,
+                loc(capacity),
+                format!("edge capacity {} is out of range", capacity.value),
+                Some(format!("accepted: 1 to {MAX_CAPACITY} messages")),
             );
         }
         let policy = edge

@@ -180,7 +180,7 @@ fn pacing_is_validated_and_only_for_sources() {
     let d = problems(
         "nodes:\n  - {id: a, kind: count, pacing: {rate_hz: -1}}\n  - {id: b, kind: record, params: {name: x}, pacing: {speed: 1}}\nedges:\n  - {from: a.out, to: b.in}\n",
     );
-    assert!(d.mentions("rate_hz must be a finite number > 0"));
+    assert!(d.mentions("rate_hz must be from 0.000001 to 1000000000, got -1"), "{d}");
     assert!(d.mentions("only sources are paced"));
 }
 
@@ -276,4 +276,75 @@ fn validation_builds_nothing_and_building_reports_at_the_parameter() {
         "{d}"
     );
     assert_eq!(line_col(d).0, 6, "{d}");
+}
+
+fn problems_with(yaml: &str, set: &[&str]) -> Diagnostics {
+    let overrides: Vec<Override> = set
+        .iter()
+        .map(|s| Override::parse(s).expect("override"))
+        .collect();
+    match resolve(yaml, "g.yaml", &registry(), &overrides) {
+        Ok(_) => panic!("expected validation errors for {set:?}"),
+        Err(diagnostics) => diagnostics,
+    }
+}
+
+const CHAIN: &str = "nodes:\n  - {id: a, kind: count, params: {count: 3}}\n  - {id: b, kind: record, params: {name: x}}\nedges:\n  - {from: a.out, to: b.in}\n";
+
+#[test]
+fn a_capacity_is_bounded_and_a_bad_default_is_said_once_with_its_line() {
+    let yaml = "settings:\n  default_capacity: 0\nnodes:\n  - {id: a, kind: count, params: {count: 3}}\n  - {id: b, kind: record, params: {name: x}}\n  - {id: c, kind: record, params: {name: z}}\nedges:\n  - {from: a.out, to: b.in}\n  - {from: a.out, to: c.in}\n";
+    let d = problems(yaml);
+    let d = only(&d);
+    assert!(d.message.contains("default_capacity 0"), "{d}");
+    assert_eq!(line_col(d).0, 2);
+    let d = problems(
+        "nodes:\n  - {id: a, kind: count, params: {count: 3}}\n  - {id: b, kind: record, params: {name: x}}\nedges:\n  - {from: a.out, to: b.in, capacity: 99999999999}\n",
+    );
+    let d = only(&d);
+    assert!(
+        d.message.contains("99999999999") && d.hint.as_deref().unwrap_or("").contains("100000"),
+        "{d}"
+    );
+    assert_eq!(line_col(d).0, 5);
+}
+
+#[test]
+fn rates_and_speeds_must_convert_to_a_clock_time() {
+    for pacing in [
+        "{rate_hz: 1e-300}",
+        "{speed: 1e-300}",
+        "{rate_hz: 1e300}",
+        "{speed: -1}",
+    ] {
+        let yaml = format!(
+            "nodes:\n  - {{id: a, kind: count, params: {{count: 3}}, pacing: {pacing}}}\n  - {{id: b, kind: record, params: {{name: x}}}}\nedges:\n  - {{from: a.out, to: b.in}}\n"
+        );
+        let d = problems(&yaml);
+        assert!(only(&d).message.contains("pacing"), "{pacing}: {d}");
+    }
+    assert!(
+        resolve(
+            CHAIN,
+            "g.yaml",
+            &registry(),
+            &[Override::parse("a.pacing.rate_hz=12").unwrap()]
+        )
+        .is_ok()
+    );
+}
+
+#[test]
+fn a_set_goes_through_the_same_checks_as_the_file() {
+    // Not a number: said, never ignored.
+    let d = problems_with(CHAIN, &["a.pacing.rate_hz=abc"]);
+    assert!(
+        only(&d).message.contains("'\"abc\"' is not a number") || only(&d).message.contains("abc"),
+        "{d}"
+    );
+    // A task is not paced, from the file or from --set.
+    let d = problems_with(CHAIN, &["b.pacing.rate_hz=3"]);
+    assert!(only(&d).message.contains("only sources are paced"), "{d}");
+    let d = problems_with(CHAIN, &["a.pacing.rate_hz=1e-300"]);
+    assert!(only(&d).message.contains("rate_hz"), "{d}");
 }
