@@ -116,11 +116,18 @@ impl TokenizerConfig {
     }
 
     pub fn from_yaml(text: &str, origin: &str) -> Result<Self, ConfigError> {
-        let config: Self = serde_saphyr::from_str(text).map_err(|e| ConfigError::Read {
+        let read_error = |message: String| ConfigError::Read {
             path: origin.to_string(),
-            message: e.to_string(),
-        })?;
-        let problems = config.problems();
+            message,
+        };
+        let config: Self = serde_saphyr::from_str(text).map_err(|e| read_error(e.to_string()))?;
+        // burn's `Config` derive cannot deny unknown fields: compare the keys as written with
+        // the config read back, so that a misspelt key is an error, not a silent default.
+        let given: serde_json::Value =
+            serde_saphyr::from_str(text).map_err(|e| read_error(e.to_string()))?;
+        let known = serde_json::to_value(&config).map_err(|e| read_error(e.to_string()))?;
+        let mut problems = bevworld_types::problem::unknown_keys(&given, &known);
+        problems.extend(config.problems());
         if problems.is_empty() {
             Ok(config)
         } else {

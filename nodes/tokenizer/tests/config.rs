@@ -158,3 +158,29 @@ fn fusion_levels_must_name_stages_the_image_backbone_has() {
         );
     }
 }
+
+#[test]
+fn a_misspelt_key_is_refused_by_its_path_not_read_as_a_default() {
+    let text = std::fs::read_to_string(model("tokenizer-tiny.yaml")).expect("tiny");
+    // A top-level key and a nested one, as a user mistypes them.
+    let misspelt = text.replace(
+        "  escape_at_far: false",
+        "  escape_at_far: false\n  escape_at_fra: true",
+    ) + "\nlatent_chanels: 8\n";
+    let Err(ConfigError::Invalid { problems, .. }) = TokenizerConfig::from_yaml(&misspelt, "tiny")
+    else {
+        panic!("a misspelt key was accepted");
+    };
+    let fields: Vec<&str> = problems.iter().map(|p| p.field.as_str()).collect();
+    assert!(fields.contains(&"latent_chanels"), "{fields:?}");
+    assert!(fields.contains(&"render.escape_at_fra"), "{fields:?}");
+    // Every committed config, and one written back, has none.
+    for name in ["tokenizer-tiny.yaml", "tokenizer-paper.yaml"] {
+        let config = TokenizerConfig::from_yaml_file(&model(name)).expect(name);
+        let written = config.to_yaml().expect("yaml");
+        assert_eq!(
+            TokenizerConfig::from_yaml(&written, name).expect("round trip"),
+            config
+        );
+    }
+}
