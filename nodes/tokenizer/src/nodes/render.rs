@@ -275,6 +275,18 @@ impl RenderNode {
 
     fn render_future(&mut self, view: Arc<FutureView>, out: &mut Outputs) -> Result<(), NodeError> {
         let (want_images, want_lidar) = (self.future_cameras, self.future_lidar);
+        for (wanted, modality) in [
+            (want_images, Modality::Camera),
+            (want_lidar, Modality::Lidar),
+        ] {
+            if wanted && !self.loaded.config.uses(modality) {
+                return Err(NodeError::fatal(format!(
+                    "render: `sensors` asks for the {}, but model '{}' was trained without them; set `sensors` to what it renders",
+                    modality.plural(),
+                    self.loaded.config.name
+                )));
+            }
+        }
         let (camera, lidar, rays) =
             self.render(&view.latent, &view.rays, want_images, want_lidar)?;
         let images = camera
