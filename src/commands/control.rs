@@ -36,6 +36,10 @@ pub struct ControlEvalArgs {
     /// DDIM steps (default: the graph's).
     #[arg(long)]
     pub steps: Option<usize>,
+    /// What forecasts: `model`, or the baseline `latent_ego_warp` (the current latent moved by
+    /// each manoeuvre's motion), to see how much of the control the ego motion alone gives.
+    #[arg(long, default_value = "model")]
+    pub method: String,
     /// Where the forecasts are written.
     #[arg(long, default_value = "out/eval-control")]
     pub out: PathBuf,
@@ -148,6 +152,8 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
     let mut rows: BTreeMap<Manoeuvre, (usize, usize, f64, usize)> = BTreeMap::new();
     let mut picture: Option<Vec<Panel>> = None;
     let mut contexts = 0;
+    // Per group: forecast manoeuvre -> true manoeuvre -> Chamfer.
+    let mut matrices = serde_json::Map::new();
     for (base, group) in &groups {
         let Some(context) = context(&dataset, group, ahead, history)? else {
             eprintln!(
@@ -173,7 +179,8 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
                 "history.log_future=false".into(),
                 format!("rollout.actions={}", manoeuvre.name()),
                 format!("rollout.horizons=[{}]", args.horizon),
-                "views.methods=[model]".into(),
+                format!("views.methods=[{}]", args.method),
+                format!("files.method={}", args.method),
                 "render.sensors=[lidar]".into(),
                 format!("files.out={}", out.display()),
                 format!("scores.json={}", out.join("scores.json").display()),
@@ -199,12 +206,22 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
                 .collect();
             forecasts.push(cloud);
         }
+        let mut matrix = serde_json::Map::new();
         for (a, (manoeuvre, _, _)) in group.iter().enumerate() {
             let distances: Vec<f64> = context
                 .truths
                 .iter()
                 .map(|truth| chamfer_in_roi(&forecasts[a], truth, &roi).chamfer)
                 .collect();
+            matrix.insert(
+                manoeuvre.name().into(),
+                group
+                    .iter()
+                    .zip(&distances)
+                    .map(|((m, _, _), d)| (m.name().to_string(), serde_json::json!(d)))
+                    .collect::<serde_json::Map<_, _>>()
+                    .into(),
+            );
             let own = distances[a];
             let right = distances
                 .iter()
@@ -220,6 +237,7 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
                 }
             }
         }
+        matrices.insert(base.clone(), matrix.into());
         if picture.is_none() {
             picture = Some(
                 group
@@ -256,7 +274,7 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
     if args.json {
         println!(
             "{}",
-            serde_json::json!({"accuracy": accuracy, "pairs": pairs, "swap_ratio": swap_ratio, "contexts": contexts, "horizon_s": args.horizon, "maneuvers": maneuvers})
+            serde_json::json!({"accuracy": accuracy, "pairs": pairs, "swap_ratio": swap_ratio, "contexts": contexts, "horizon_s": args.horizon, "method": args.method, "maneuvers": maneuvers, "distances": matrices})
         );
     } else {
         println!("| manoeuvre | pairs | accuracy | swap ratio |\n|---|---|---|---|");

@@ -7,7 +7,8 @@
 //! - `<out>/<scene>-<index>/strip_CAM_*.png` once every horizon is in: one column per horizon,
 //!   the truth above the forecast (grey where the log has no truth).
 //!
-//! Only the `model` method's renders are written; the baselines are scored, not saved.
+//! Only one method's renders are written (`method`, the forecast by default); the others are
+//! scored, not saved.
 
 use std::collections::BTreeMap;
 use std::io::Cursor;
@@ -33,6 +34,13 @@ pub struct ForecastSinkParams {
     /// Half the side of the top-down picture, in metres.
     #[serde(default = "default_extent")]
     pub top_down_half_extent_m: f64,
+    /// Whose renders are written: `model` (the forecast), or a baseline's name.
+    #[serde(default = "default_method")]
+    pub method: String,
+}
+
+fn default_method() -> String {
+    ForecastMethod::Model.name().into()
 }
 
 fn default_extent() -> f64 {
@@ -61,6 +69,7 @@ struct Column {
 
 pub struct ForecastSink {
     params: ForecastSinkParams,
+    method: ForecastMethod,
     writes: Writes,
     /// Per context folder, the columns seen so far.
     strips: BTreeMap<String, Vec<Column>>,
@@ -181,7 +190,7 @@ impl Sink for ForecastSink {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
         let rendered = inputs.get::<RenderedFuture>("rendered")?;
         let view = &rendered.view;
-        if view.method != ForecastMethod::Model {
+        if view.method != self.method {
             return Ok(());
         }
         let folder = context_folder(view);
@@ -296,7 +305,12 @@ pub fn register(registry: &mut Registry) {
             if !(params.top_down_half_extent_m.is_finite() && params.top_down_half_extent_m > 0.0) {
                 return Err(ParamError::field("top_down_half_extent_m", "must be a number > 0"));
             }
+            let method = ForecastMethod::parse(&params.method).ok_or_else(|| {
+                ParamError::field("method", format!("unknown method '{}'", params.method))
+                    .with_accepted("model, latent_copy_last, latent_ego_warp, oracle")
+            })?;
             Ok(Node::Sink(Box::new(ForecastSink {
+                method,
                 params,
                 writes: Writes::new(16),
                 strips: BTreeMap::new(),

@@ -97,6 +97,23 @@ impl Manoeuvre {
     }
 }
 
+/// The ego's motion now, at the end of the last of `into_frames` (the actions into the last
+/// frames, oldest first). An action's speed and yaw rate are means over its interval, half an
+/// interval behind the frame it ends at: each is carried that half interval further along its
+/// change since the action before, so that an ego that was speeding up is not taken for one
+/// holding its speed. With one action, its rates are the estimate.
+pub fn current_motion(into_frames: &[EgoAction]) -> EgoAction {
+    match into_frames {
+        [] => EgoAction::default(),
+        [only] => *only,
+        [.., before, last] => EgoAction {
+            speed_mps: (last.speed_mps + 0.5 * (last.speed_mps - before.speed_mps)).max(0.0),
+            yaw_rate_rps: last.yaw_rate_rps + 0.5 * (last.yaw_rate_rps - before.yaw_rate_rps),
+            ..*last
+        },
+    }
+}
+
 /// The action of driving at `speed` with `yaw_rate` for `dt_s`: an arc, exactly.
 pub fn constant_turn(speed: f64, yaw_rate: f64, dt_s: f64) -> EgoAction {
     let dyaw = yaw_rate * dt_s;
@@ -137,6 +154,22 @@ mod tests {
         for (a, b) in action.as_features().iter().zip(measured.as_features()) {
             assert!((a - b).abs() < 1e-5, "{action:?} vs {measured:?}");
         }
+    }
+
+    #[test]
+    fn the_current_motion_is_carried_half_an_interval_past_the_last_mean() {
+        // Speeding up at 2 m/s²: the means over two 0.5 s intervals are 4 and 5 m/s, so the
+        // speed at the end of the second is 5.5 m/s.
+        let actions = [constant_turn(4.0, 0.1, 0.5), constant_turn(5.0, 0.2, 0.5)];
+        let now = current_motion(&actions);
+        // (An action's speed is its forward displacement over time, a little less on an arc.)
+        assert!((now.speed_mps - 5.5).abs() < 0.02, "{now:?}");
+        assert!((now.yaw_rate_rps - 0.25).abs() < 1e-9);
+        assert_eq!(current_motion(&actions[..1]), actions[0]);
+        assert_eq!(current_motion(&[]), EgoAction::default());
+        // Braking to a stop is not carried below standstill.
+        let stopping = [constant_turn(3.0, 0.0, 0.5), constant_turn(0.5, 0.0, 0.5)];
+        assert_eq!(current_motion(&stopping).speed_mps, 0.0);
     }
 
     #[test]

@@ -477,3 +477,31 @@ fn a_log_that_ends_gives_a_forecast_without_truth_and_the_frames_held_are_bounde
     assert!(views.ready(true).is_empty());
     assert_eq!(views.contexts_missing, 1);
 }
+
+#[test]
+fn without_truth_a_baseline_is_rendered_only_when_asked_for_alone() {
+    let with_warp = || {
+        let mut f = forecast("a", 0.0, 6, "left", 42.0);
+        let warp = Arc::clone(&f.horizons[0].latents[0].1);
+        f.horizons[0]
+            .latents
+            .push((ForecastMethod::LatentEgoWarp, warp));
+        f
+    };
+    let mut both = FutureViews::new(
+        vec![ForecastMethod::Model, ForecastMethod::LatentEgoWarp],
+        0.05,
+        64,
+    );
+    both.push_frame(frame("a", 0.0));
+    both.push_forecast(with_warp());
+    let ready = both.ready(false);
+    assert_eq!(ready.len(), 1, "nothing to score the baseline against");
+    assert_eq!(ready[0].method, ForecastMethod::Model);
+    let mut alone = FutureViews::new(vec![ForecastMethod::LatentEgoWarp], 0.05, 64);
+    alone.push_frame(frame("a", 0.0));
+    alone.push_forecast(with_warp());
+    let ready = alone.ready(false);
+    assert_eq!(ready.len(), 1);
+    assert_eq!(ready[0].method, ForecastMethod::LatentEgoWarp);
+}

@@ -29,7 +29,7 @@ use crate::actions::ActionStats;
 use crate::config::WorldModelConfig;
 use crate::ddim::{DdimConfig, Spacing};
 use crate::ego_warp::PlanarMotion;
-use crate::manoeuvre::{Manoeuvre, constant_turn};
+use crate::manoeuvre::{Manoeuvre, constant_turn, current_motion};
 use crate::model::WorldModel;
 use crate::nodes::model_params::WorldModelParams;
 use crate::rollout::Rollout;
@@ -134,7 +134,7 @@ impl FutureActions {
                 Ok(actions)
             }
             FutureActions::Manoeuvre(manoeuvre) => {
-                let current = window.context_actions.last().copied().unwrap_or_default();
+                let current = current_motion(&window.context_actions);
                 Ok(manoeuvre.actions(&current, frames, dt_s))
             }
             FutureActions::List(list) => Ok(list

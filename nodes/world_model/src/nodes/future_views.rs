@@ -262,8 +262,12 @@ impl FutureViews {
                 without_truth += 1;
             }
             for &method in &self.methods {
-                // A baseline is rendered to be scored; without a truth only the forecast is.
-                if truth.is_none() && method != ForecastMethod::Model {
+                // A baseline is rendered to be scored; without a truth only the forecast is,
+                // unless the graph asks for the baseline alone (to compare it as a forecast).
+                if truth.is_none()
+                    && method != ForecastMethod::Model
+                    && self.methods.contains(&ForecastMethod::Model)
+                {
                     continue;
                 }
                 let latent = match method {
