@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# The figures of bench/results/forecast.md, from a clean checkout:
+#   bench/scripts/forecast.sh [BEVWORLD_BINARY]
+# 1. forecasts on the held-out test scenes (seeds 9500-9503, the world model's test range,
+#    made by `bevworld train world-model --prepare-only` or here) and on the validation scenes
+#    (9100-9101) at 1 and 4 DDIM steps, the only setting chosen on them;
+# 2. action control on branched held-out scenes (seeds 9800-9807, branched at 2 s);
+# 3. the live graph's latencies at 12 Hz.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+BIN="${1:-cargo run --release --}"
+for split in val:9100:2 test:9500:4; do
+    IFS=: read -r name seed scenes <<<"$split"
+    if [ ! -d "out/synth-wm-$name" ]; then
+        $BIN synth --out "out/synth-wm-$name" --seed "$seed" --scenes "$scenes" --seconds 20 --camera-size 224x126
+    fi
+done
+for steps in 1 4; do
+    $BIN eval forecast --data out/synth-wm-val --out "out/eval-forecast-val-s$steps" --steps "$steps"
+done
+$BIN eval forecast --data out/synth-wm-test --out out/eval-forecast-test \
+    --plot bench/results/forecast-chamfer.png --json > out/eval-forecast-test.json
+if [ ! -d out/synth-control-test ]; then
+    $BIN synth --out out/synth-control-test --seed 9800 --scenes 8 --seconds 5.5 \
+        --camera-size 224x126 --branch-at 2
+fi
+$BIN eval control --data out/synth-control-test --picture bench/results/control.png \
+    --out out/eval-control-test
+$BIN run configs/graphs/forecast.yaml --metrics out/forecast/metrics.json
+$BIN run configs/graphs/forecast_live.yaml --metrics out/forecast-live/metrics.json
