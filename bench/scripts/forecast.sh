@@ -4,7 +4,8 @@
 # 1. forecasts on the held-out test scenes (seeds 9500-9503, the world model's test range,
 #    made by `bevworld train world-model --prepare-only` or here) and on the validation scenes
 #    (9100-9101) at 1 and 4 DDIM steps, the only setting chosen on them;
-# 2. action control on branched held-out scenes (seeds 9800-9807, branched at 2 s);
+# 2. action control on branched scenes, branched at 2 s: validation seeds 9850-9853, held-out
+#    test seeds 9800-9807, the model and the ego-warp baseline;
 # 3. the live graph's latencies at 12 Hz.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -20,11 +21,17 @@ for steps in 1 4; do
 done
 $BIN eval forecast --data out/synth-wm-test --out out/eval-forecast-test \
     --plot bench/results/forecast-chamfer.png --json > out/eval-forecast-test.json
-if [ ! -d out/synth-control-test ]; then
-    $BIN synth --out out/synth-control-test --seed 9800 --scenes 8 --seconds 5.5 \
-        --camera-size 224x126 --branch-at 2
-fi
+for split in val:9850:4 test:9800:8; do
+    IFS=: read -r name seed scenes <<<"$split"
+    if [ ! -d "out/synth-control-$name" ]; then
+        $BIN synth --out "out/synth-control-$name" --seed "$seed" --scenes "$scenes" --seconds 5.5 \
+            --camera-size 224x126 --branch-at 2
+    fi
+done
+$BIN eval control --data out/synth-control-val --out out/eval-control-val
 $BIN eval control --data out/synth-control-test --picture bench/results/control.png \
-    --out out/eval-control-test
+    --out out/eval-control-test --json > bench/results/control-test.json
+$BIN eval control --data out/synth-control-test --method latent_ego_warp \
+    --out out/eval-control-test-warp
 $BIN run configs/graphs/forecast.yaml --metrics out/forecast/metrics.json
 $BIN run configs/graphs/forecast_live.yaml --metrics out/forecast-live/metrics.json
