@@ -180,7 +180,10 @@ fn pacing_is_validated_and_only_for_sources() {
     let d = problems(
         "nodes:\n  - {id: a, kind: count, pacing: {rate_hz: -1}}\n  - {id: b, kind: record, params: {name: x}, pacing: {speed: 1}}\nedges:\n  - {from: a.out, to: b.in}\n",
     );
-    assert!(d.mentions("rate_hz must be from 0.000001 to 1000000000, got -1"), "{d}");
+    assert!(
+        d.mentions("rate_hz must be from 0.000001 to 1000000000, got -1"),
+        "{d}"
+    );
     assert!(d.mentions("only sources are paced"));
 }
 
