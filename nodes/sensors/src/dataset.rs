@@ -75,7 +75,19 @@ impl Dataset {
             DatasetFormat::Auto if Kitti::recognise(root) => {
                 Kitti::open(root, options.non_finite).map(Dataset::Kitti)
             }
-            DatasetFormat::Auto => nuscenes(options.version.clone()),
+            DatasetFormat::Auto => nuscenes(options.version.clone()).map_err(|error| {
+                // Say what each layout would need, not only what the nuScenes reader missed.
+                if root.join("velodyne").is_dir() && !Kitti::recognise(root) {
+                    SensorError::file(
+                        root,
+                        format!(
+                            "has velodyne/ but no poses.txt, so it is not a KITTI odometry sequence (velodyne/*.bin, poses.txt, calib.txt); read as nuScenes instead: {error}"
+                        ),
+                    )
+                } else {
+                    error
+                }
+            }),
         }
     }
 

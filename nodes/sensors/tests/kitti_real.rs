@@ -199,3 +199,20 @@ fn an_empty_scan_is_an_error_naming_the_file() {
         "{error}"
     );
 }
+
+#[test]
+fn a_kitti_folder_without_poses_is_named_as_such_under_auto() {
+    let dir = tempfile::tempdir().unwrap();
+    if !copy_sequence(dir.path()) {
+        return;
+    }
+    std::fs::remove_file(dir.path().join("poses.txt")).unwrap();
+    let error = match Dataset::open(dir.path(), &DatasetOptions::default()) {
+        Ok(_) => panic!("a sequence without poses was opened"),
+        Err(error) => error.to_string(),
+    };
+    assert!(
+        error.contains("no poses.txt") && error.contains("KITTI odometry"),
+        "{error}"
+    );
+}

@@ -229,3 +229,33 @@ fn malformed_table_json_names_the_table() {
         "{error}"
     );
 }
+
+#[test]
+fn impossible_focal_lengths_are_refused_naming_the_calibration() {
+    for (fx, fy) in [(0.0, 1266.0), (-1266.0, 1266.0), (1266.0, 0.0)] {
+        let Some(dir) = sample_copy() else {
+            return;
+        };
+        edit_table(dir.path(), "calibrated_sensor", |rows| {
+            for row in rows.as_array_mut().unwrap() {
+                if row["camera_intrinsic"]
+                    .as_array()
+                    .is_some_and(|m| m.len() == 3)
+                {
+                    row["camera_intrinsic"][0][0] = fx.into();
+                    row["camera_intrinsic"][1][1] = fy.into();
+                }
+            }
+        });
+        let error = match open(dir.path()).and_then(|d| d.read(0)) {
+            Ok(_) => panic!("focal lengths {fx}, {fy} were accepted"),
+            Err(error) => error.to_string(),
+        };
+        assert!(
+            error.contains("calibrated_sensor.json")
+                && error.contains("camera_intrinsic")
+                && error.contains("focal lengths"),
+            "{error}"
+        );
+    }
+}

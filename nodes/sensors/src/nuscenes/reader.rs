@@ -207,6 +207,17 @@ impl NuScenes {
                     [rows[1][0], rows[1][1], rows[1][2]],
                     [rows[2][0], rows[2][1], rows[2][2]],
                 ];
+                // A focal length of 0 projects every point onto the principal point, and a
+                // negative one mirrors the image: no real camera has either.
+                let (fx, fy) = (matrix[0][0], matrix[1][1]);
+                if !(fx > 0.0 && fy > 0.0) {
+                    return Err(SensorError::field(
+                        &calib_path,
+                        format!("calibrated_sensor {}", calib.token),
+                        "camera_intrinsic",
+                        format!("focal lengths fx = {fx}, fy = {fy}: a camera needs both > 0"),
+                    ));
+                }
                 Some(Intrinsics::from_rows(matrix, record.width, record.height))
             } else {
                 None
