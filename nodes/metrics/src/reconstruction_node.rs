@@ -41,7 +41,9 @@ pub struct FrameScores {
     pub frame_token: String,
     pub psnr_db: f64,
     pub ssim: f64,
-    pub chamfer_m2: f64,
+    /// `None` when the rendered or the true sweep has no point in the ROI: an empty cloud is
+    /// reported and counted, never scored as a perfect 0.
+    pub chamfer_m2: Option<f64>,
 }
 
 /// Why a reconstruction could not be scored.
@@ -131,7 +133,10 @@ pub fn score_frame(
         frame_token: frame.frame_token.clone(),
         psnr_db,
         ssim,
-        chamfer_m2: score_lidar(frame, lidar, roi).chamfer,
+        chamfer_m2: {
+            let result = score_lidar(frame, lidar, roi);
+            (result.pred_points > 0 && result.gt_points > 0).then_some(result.chamfer)
+        },
     })
 }
 
@@ -152,7 +157,9 @@ impl Sink for ReconstructionMetrics {
             frame = %scores.frame_token,
             psnr_db = format!("{:.2}", scores.psnr_db),
             ssim = format!("{:.3}", scores.ssim),
-            chamfer_m2 = format!("{:.3}", scores.chamfer_m2),
+            chamfer_m2 = scores
+                .chamfer_m2
+                .map_or("empty cloud".to_string(), |c| format!("{c:.3}")),
             "reconstruction"
         );
         self.scores.push(scores);
@@ -166,8 +173,11 @@ impl Sink for ReconstructionMetrics {
         let mut text = String::from("frame_token,psnr_db,ssim,chamfer_m2\n");
         for s in &self.scores {
             text.push_str(&format!(
-                "{},{:.4},{:.5},{:.5}\n",
-                s.frame_token, s.psnr_db, s.ssim, s.chamfer_m2
+                "{},{:.4},{:.5},{}\n",
+                s.frame_token,
+                s.psnr_db,
+                s.ssim,
+                s.chamfer_m2.map_or(String::new(), |c| format!("{c:.5}"))
             ));
         }
         if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -187,7 +197,14 @@ impl Sink for ReconstructionMetrics {
                 |f: fn(&FrameScores) -> f64| self.scores.iter().map(f).sum::<f64>() / n as f64;
             figures.insert("psnr_db_mean".into(), mean(|s| s.psnr_db));
             figures.insert("ssim_mean".into(), mean(|s| s.ssim));
-            figures.insert("chamfer_m2_mean".into(), mean(|s| s.chamfer_m2));
+            let chamfers: Vec<f64> = self.scores.iter().filter_map(|s| s.chamfer_m2).collect();
+            figures.insert("empty_clouds".into(), (n - chamfers.len()) as f64);
+            if !chamfers.is_empty() {
+                figures.insert(
+                    "chamfer_m2_mean".into(),
+                    chamfers.iter().sum::<f64>() / chamfers.len() as f64,
+                );
+            }
         }
         figures
     }

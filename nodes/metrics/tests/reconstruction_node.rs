@@ -87,7 +87,7 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     .expect("scores");
     assert_eq!(scores.psnr_db, 100.0, "identical images hit the cap");
     assert!((scores.ssim - 1.0).abs() < 1e-9);
-    assert_eq!(scores.chamfer_m2, 0.0);
+    assert_eq!(scores.chamfer_m2, Some(0.0));
 
     // Points on the car in the rendered cloud count against it: with the whole input as the
     // "render", the ground-truth-to-render half is 0 and the other half is each point's
@@ -134,10 +134,10 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     let expected =
         0.5 * on_the_car.iter().map(nearest_squared).sum::<f64>() / rendered.len() as f64;
     assert!(expected > 0.0);
+    let chamfer = scores.chamfer_m2.expect("both clouds hold points");
     assert!(
-        (scores.chamfer_m2 - expected).abs() <= 1e-9 * expected,
-        "{} against {expected}",
-        scores.chamfer_m2
+        (chamfer - expected).abs() <= 1e-9 * expected,
+        "{chamfer} against {expected}",
     );
 
     let mut sink = build(serde_json::json!({})).expect("node");
@@ -158,6 +158,32 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     let figures = sink.report();
     assert_eq!(figures.get("frames_scored"), Some(&1.0));
     assert_eq!(figures.get("psnr_db_mean"), Some(&100.0));
+    assert_eq!(figures.get("empty_clouds"), Some(&0.0));
+
+    // An empty render is not a perfect one: reported, counted and kept out of the mean.
+    let empty = bevworld_types::PointCloud {
+        points: Vec::new(),
+        ..(*frame.lidar).clone()
+    };
+    let scores =
+        score_frame(&frame, &inputs_as_render(&frame), &empty, &Roi::FOUR_D_OCC).expect("scores");
+    assert_eq!(scores.chamfer_m2, None);
+    let inputs = Inputs::from_messages(
+        &["frame", "images", "lidar"],
+        vec![
+            Some(Message::new(header, frame.clone())),
+            Some(Message::new(header, inputs_as_render(&frame))),
+            Some(Message::new(header, empty)),
+        ],
+    );
+    sink.consume(&inputs).expect("consumed");
+    let figures = sink.report();
+    assert_eq!(figures.get("empty_clouds"), Some(&1.0));
+    let mean = *figures.get("chamfer_m2_mean").expect("the real frame's");
+    assert!(
+        mean > 0.0,
+        "the empty render left out of the mean, not averaged in as 0"
+    );
 }
 
 #[test]
