@@ -6,6 +6,10 @@
 //! - Writes are atomic. A rerun skips files that exist unless `overwrite` is set, so a killed
 //!   run restarted with the same command completes the set without duplicates; temporary files
 //!   a kill left behind are removed at start.
+//! - A file is kept only when an index in the folder says it was made by the same model and
+//!   weights as the features now arriving. Made by others, it is refused (naming both digests
+//!   and `overwrite`): keeping it would relabel it. Of unknown origin (a run killed before it
+//!   wrote its index), it is written again.
 //! - The index is merged with an existing one (entries keyed by frame token) and written
 //!   atomically at the end. Shards writing to one folder each name their own `index`.
 
@@ -51,8 +55,11 @@ pub struct ExportSink {
     params: ExportParams,
     writes: Writes,
     entries: BTreeMap<String, serde_json::Value>,
+    /// What every index in the folder says made each file: file name -> (model, weights).
+    provenance: BTreeMap<String, (String, String)>,
     written: u64,
     skipped_existing: u64,
+    rewritten_unindexed: u64,
 }
 
 /// A file name from a sample token: path separators and odd characters become '_'.
@@ -120,6 +127,31 @@ impl Sink for ExportSink {
                 }
             }
         }
+        // Every index in the folder (each shard's, each pass's) says who made its files.
+        if let Ok(entries) = std::fs::read_dir(out) {
+            for entry in entries.flatten() {
+                let path = entry.path();
+                if path.extension().is_none_or(|e| e != "json") {
+                    continue;
+                }
+                let Ok(text) = std::fs::read_to_string(&path) else {
+                    continue;
+                };
+                let Ok(index) = serde_json::from_str::<serde_json::Value>(&text) else {
+                    continue;
+                };
+                for frame in index["frames"].as_array().into_iter().flatten() {
+                    if let (Some(file), Some(model), Some(hash)) = (
+                        frame["file"].as_str(),
+                        frame["model"].as_str(),
+                        frame["weights_hash"].as_str(),
+                    ) {
+                        self.provenance
+                            .insert(file.to_string(), (model.to_string(), hash.to_string()));
+                    }
+                }
+            }
+        }
         let index = out.join(&self.params.index);
         if index.exists() {
             let text = std::fs::read_to_string(&index)
@@ -149,9 +181,28 @@ impl Sink for ExportSink {
         };
         let file = format!("{}.{extension}", file_stem(token));
         let path = self.params.out.join(&file);
-        if path.exists() && !self.params.overwrite {
+        let made_by = self.provenance.get(&file);
+        let same_maker = made_by.is_some_and(|(model, hash)| {
+            *model == features.model && *hash == features.weights_hash
+        });
+        if path.exists()
+            && !self.params.overwrite
+            && !same_maker
+            && let Some((model, hash)) = made_by
+        {
+            return Err(NodeError::fatal(format!(
+                "{}: made by model '{model}' with weights {hash}, but this run exports model '{}' with weights {}: keeping it would relabel it; rerun with --overwrite (or `overwrite: true`) to replace it, or export into another folder",
+                path.display(),
+                features.model,
+                features.weights_hash
+            )));
+        }
+        if path.exists() && !self.params.overwrite && same_maker {
             self.skipped_existing += 1;
         } else {
+            if path.exists() && !self.params.overwrite {
+                self.rewritten_unindexed += 1;
+            }
             let bytes = encode(features, self.params.format)
                 .map_err(|e| NodeError::item(format!("{token}: {e}")))?;
             self.writes.write(path, bytes)?;
@@ -198,6 +249,10 @@ impl Sink for ExportSink {
         Figures::from([
             ("files_written".to_string(), self.written as f64),
             ("skipped_existing".to_string(), self.skipped_existing as f64),
+            (
+                "rewritten_unindexed".to_string(),
+                self.rewritten_unindexed as f64,
+            ),
         ])
     }
 }
@@ -216,7 +271,7 @@ pub fn register(registry: &mut Registry) {
             Ok(())
         },
         |params: ExportParams| {
-            Ok(Node::Sink(Box::new(ExportSink { params, writes: Writes::new(8), entries: BTreeMap::new(), written: 0, skipped_existing: 0 })))
+            Ok(Node::Sink(Box::new(ExportSink { params, writes: Writes::new(8), entries: BTreeMap::new(), provenance: BTreeMap::new(), written: 0, skipped_existing: 0, rewritten_unindexed: 0 })))
         },
     );
 }

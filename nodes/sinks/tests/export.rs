@@ -182,3 +182,57 @@ fn bad_parameters_and_a_corrupt_index_are_clear_errors() {
         "{error}"
     );
 }
+
+#[test]
+fn a_resumed_export_keeps_only_files_made_by_the_same_weights() {
+    let dir = tempfile::tempdir().unwrap();
+    let untrained = |token: &str| BevFeatures {
+        weights_hash: "untrained".into(),
+        ..features(token, 0.0)
+    };
+    let shipped = |token: &str| BevFeatures {
+        weights_hash: "a30358a23e03bb4b".into(),
+        ..features(token, 5.0)
+    };
+    export(serde_json::json!({"out": dir.path()}), &[untrained("a")]);
+    // Resumed with other weights, without overwrite: refused, naming both and the way out.
+    let mut sink = sink(serde_json::json!({"out": dir.path()}));
+    sink.start().unwrap();
+    let header = Header {
+        seq: 0,
+        time_of_validity_us: 0,
+        entered_graph: Instant::now(),
+    };
+    let error = sink
+        .consume(&Inputs::from_messages(
+            &["features"],
+            vec![Some(Message::new(header, shipped("a")))],
+        ))
+        .expect_err("relabelled")
+        .to_string();
+    assert!(
+        error.contains("untrained")
+            && error.contains("a30358a23e03bb4b")
+            && error.contains("--overwrite"),
+        "{error}"
+    );
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("index.json")).unwrap()).unwrap();
+    assert_eq!(
+        index["frames"][0]["weights_hash"], "untrained",
+        "the index still tells the truth"
+    );
+
+    // A file no index knows (a run killed before its index) is written again, not trusted.
+    std::fs::write(dir.path().join("b.npy"), b"unknown origin").unwrap();
+    let figures = export(
+        serde_json::json!({"out": dir.path(), "index": "other.json"}),
+        &[shipped("b")],
+    );
+    assert_eq!(figures["rewritten_unindexed"], 1.0);
+    let (_, values) = read_npy_f32(&std::fs::read(dir.path().join("b.npy")).unwrap()).unwrap();
+    assert_eq!(values[0], 5.0);
+    // And the same weights resume as before: kept, counted.
+    let figures = export(serde_json::json!({"out": dir.path()}), &[untrained("a")]);
+    assert_eq!(figures["skipped_existing"], 1.0);
+}
