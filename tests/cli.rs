@@ -553,3 +553,30 @@ fn synth_refuses_jpeg_quality_seed_wrap_and_agent_floods() {
         assert!(!out.exists(), "{flags:?}: nothing written");
     }
 }
+
+#[test]
+fn a_set_merges_into_the_resolved_value_and_keeps_a_hash_in_its_text() {
+    let dir = tempfile::tempdir().unwrap();
+    // A graph whose pillarize node takes the default grid.
+    let graph = dir.path().join("g.yaml");
+    let yaml = "nodes:\n  - {id: source, kind: dataset_source, params: {data: DATA}}\n  - {id: pillars, kind: pillarize}\n  - {id: export, kind: export_features, params: {out: OUT}}\n  - {id: bev, kind: bev_stats}\nedges:\n  - {from: source.frame, to: pillars.frame}\n  - {from: pillars.pillars, to: bev.pillars}\n  - {from: bev.features, to: export.features}\n";
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    std::fs::write(
+        &graph,
+        yaml.replace("DATA", &data.display().to_string())
+            .replace("OUT", &dir.path().join("o").display().to_string()),
+    )
+    .unwrap();
+    let g = graph.display().to_string();
+    let output = bevworld(&["check", &g, "--set", "pillars.grid.pillar_size=0.5"]);
+    assert!(output.status.success(), "{}", text(&output));
+    let listing = text(&output);
+    assert!(
+        listing.contains("\"pillar_size\":0.5") && listing.contains("\"x_range\""),
+        "{listing}"
+    );
+    let output = bevworld(&["check", &g, "--set", "export.out=/tmp/x #2"]);
+    assert!(output.status.success(), "{}", text(&output));
+    assert!(text(&output).contains("/tmp/x #2"), "{}", text(&output));
+}

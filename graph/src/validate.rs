@@ -187,8 +187,17 @@ impl Override {
         let value = if value.trim().is_empty() {
             serde_json::Value::String(String::new())
         } else {
-            serde_saphyr::from_str::<serde_json::Value>(value)
-                .unwrap_or_else(|_| serde_json::Value::String(value.to_string()))
+            match serde_saphyr::from_str::<serde_json::Value>(value) {
+                // YAML would read `/tmp/x #2` as `/tmp/x` and a comment: a value on the
+                // command line is the text the user typed.
+                Ok(serde_json::Value::String(_))
+                    if value.contains(" #") && !value.trim_start().starts_with(['"', '\'']) =>
+                {
+                    serde_json::Value::String(value.to_string())
+                }
+                Ok(parsed) => parsed,
+                Err(_) => serde_json::Value::String(value.to_string()),
+            }
         };
         Ok(Self {
             node: node.to_string(),
@@ -455,6 +464,19 @@ fn check_node(
         for (key, value) in &map.value {
             params.insert(key.clone(), value.value.clone());
             locations.keys.insert(key.clone(), value.referenced);
+        }
+    }
+    // A `--set` of part of a nested parameter merges into its value as the file resolves it,
+    // defaults included, so that `grid.pillar_size=0.5` keeps the default grid's ranges.
+    let has_param_override = overrides
+        .iter()
+        .any(|o| o.node == id && !o.key.starts_with("pacing.") && o.key != "on_error");
+    if has_param_override
+        && let Ok(checked) = kind.check(&serde_json::Value::Object(params.clone()))
+        && let serde_json::Value::Object(resolved) = checked.resolved_params
+    {
+        for (key, value) in resolved {
+            params.entry(key).or_insert(value);
         }
     }
     let mut pacing_decl = decl.pacing.as_ref().map(|p| p.value).unwrap_or_default();
