@@ -273,10 +273,15 @@ fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> R
         std::fs::write(file, outcome.report.to_json())
             .with_context(|| format!("writing metrics to {}", file.display()))?;
     }
-    if let Some(error) = outcome.error {
-        bail!(error);
+    match outcome.error {
+        // A second Ctrl-C: the shell's convention for a run ended by SIGINT.
+        Some(error @ bevworld_graph::RunError::Aborted { .. }) => {
+            eprintln!("error: {error}");
+            Ok(ExitCode::from(130))
+        }
+        Some(error) => bail!(error),
+        None => Ok(ExitCode::SUCCESS),
     }
-    Ok(ExitCode::SUCCESS)
 }
 
 /// The run's progress bar: items released by the sources against the totals they announce,

@@ -580,3 +580,142 @@ fn a_set_merges_into_the_resolved_value_and_keeps_a_hash_in_its_text() {
     assert!(output.status.success(), "{}", text(&output));
     assert!(text(&output).contains("/tmp/x #2"), "{}", text(&output));
 }
+
+/// `bevworld run` in the background, for the signal tests.
+fn spawn_run(args: &[String]) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_bevworld"))
+        .args(args)
+        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+fn signal(child: &std::process::Child, name: &str) {
+    let status = Command::new("kill")
+        .args([name, &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+#[test]
+fn sigterm_drains_like_the_first_ctrl_c() {
+    let Some(nuscenes) = nuscenes() else {
+        return;
+    };
+    let out = tempfile::tempdir().unwrap();
+    let metrics = out.path().join("metrics.json");
+    let child = spawn_run(&[
+        "run".into(),
+        "configs/graphs/replay.yaml".into(),
+        "--set".into(),
+        format!("source.data={}", nuscenes.display()),
+        "--set".into(),
+        "source.repeat=1000".into(),
+        "--set".into(),
+        "source.skip_images=true".into(),
+        "--set".into(),
+        format!("images.out={}", out.path().display()),
+        "--set".into(),
+        format!("sweeps.out={}", out.path().display()),
+        "--metrics".into(),
+        metrics.display().to_string(),
+        "--no-progress".into(),
+    ]);
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    signal(&child, "-TERM");
+    let output = child.wait_with_output().unwrap();
+    assert!(output.status.success(), "{}", text(&output));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
+    assert_eq!(report["outcome"], "drained");
+}
+
+#[test]
+fn a_second_ctrl_c_aborts_and_says_so_with_exit_130() {
+    let Some(nuscenes) = nuscenes() else {
+        return;
+    };
+    let out = tempfile::tempdir().unwrap();
+    let metrics = out.path().join("metrics.json");
+    let mut args: Vec<String> = vec![
+        "run".into(),
+        "configs/graphs/reconstruct.yaml".into(),
+        "--set".into(),
+        format!("source.data={}", nuscenes.display()),
+        "--set".into(),
+        "source.repeat=1000".into(),
+        "--metrics".into(),
+        metrics.display().to_string(),
+        "--no-progress".into(),
+    ];
+    for sink in [
+        "inputs",
+        "reconstructions",
+        "pairs",
+        "input_sweep",
+        "rendered_sweep",
+    ] {
+        args.push("--set".into());
+        args.push(format!("{sink}.out={}", out.path().display()));
+    }
+    args.push("--set".into());
+    args.push(format!(
+        "metrics.csv={}",
+        out.path().join("metrics.csv").display()
+    ));
+    let child = spawn_run(&args);
+    // Let the model load and frames flow, then interrupt twice while the drain is under way.
+    let started = std::time::Instant::now();
+    while started.elapsed() < std::time::Duration::from_secs(120)
+        && std::fs::read_dir(out.path()).map_or(0, |d| d.count()) < 3
+    {
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    signal(&child, "-INT");
+    std::thread::sleep(std::time::Duration::from_millis(150));
+    signal(&child, "-INT");
+    let output = child.wait_with_output().unwrap();
+    assert_eq!(output.status.code(), Some(130), "{}", text(&output));
+    assert!(text(&output).contains("aborted"), "{}", text(&output));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
+    let outcome = report["outcome"].as_str().unwrap();
+    assert!(
+        outcome.starts_with("aborted") && outcome.contains("metrics"),
+        "{outcome}"
+    );
+    assert!(
+        !out.path().join("metrics.csv").exists(),
+        "the CSV is written at the end, which never came"
+    );
+}
+
+#[test]
+fn a_run_that_produces_nothing_fails_saying_so() {
+    let Some(nuscenes) = nuscenes() else {
+        return;
+    };
+    let out = tempfile::tempdir().unwrap();
+    let output = bevworld(&[
+        "run",
+        "configs/graphs/replay.yaml",
+        "--set",
+        &format!("source.data={}", nuscenes.display()),
+        "--set",
+        "source.start=50",
+        "--set",
+        &format!("images.out={}", out.path().display()),
+        "--set",
+        &format!("sweeps.out={}", out.path().display()),
+        "--no-progress",
+    ]);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    assert!(
+        text(&output).contains("produced no items"),
+        "{}",
+        text(&output)
+    );
+}

@@ -70,4 +70,11 @@ pub enum RunError {
     Hung { nodes: Vec<String>, grace_ms: u64 },
     #[error("could not start the runtime: {0}")]
     Startup(String),
+    /// Stopped at once (a second Ctrl-C): what was in flight is lost.
+    #[error("aborted; nodes that did not finish (their outputs are incomplete): {unfinished:?}")]
+    Aborted { unfinished: Vec<String> },
+    /// The sources produced nothing, or every item was skipped: a run that made nothing is
+    /// not a success.
+    #[error("nothing was done: {0}")]
+    NothingDone(String),
 }

@@ -122,6 +122,9 @@ pub struct NodeReport {
     pub skips: u64,
     /// Extra figures a node reports (PSNR, Chamfer, pillar counts), by name.
     pub extra: std::collections::BTreeMap<String, f64>,
+    /// The node reached its end: a source its last item or a drain, a task or sink its
+    /// `finish` (buffers flushed, files closed). False after an abort cut it short.
+    pub finished: bool,
     #[serde(skip)]
     pub latency: LatencyHistogram,
     #[serde(skip)]
@@ -146,6 +149,7 @@ impl NodeReport {
             unaligned: 0,
             skips: 0,
             extra: Default::default(),
+            finished: false,
             latency: LatencyHistogram::default(),
             age: LatencyHistogram::default(),
         }
@@ -178,7 +182,8 @@ pub struct EdgeReport {
 pub struct RunReport {
     pub graph: String,
     pub wall_seconds: f64,
-    /// Why the run ended: "completed", "drained" (Ctrl-C) or the error.
+    /// Why the run ended: "completed", "drained" (Ctrl-C or SIGTERM), "aborted: …" (a second
+    /// Ctrl-C, naming the nodes that did not finish) or "failed: …".
     pub outcome: String,
     pub nodes: Vec<NodeReport>,
     pub edges: Vec<EdgeReport>,

@@ -166,6 +166,7 @@ pub fn run(graph: ResolvedGraph, options: RunOptions) -> RunOutcome {
             failures,
             startup_error: spawned.startup_error,
             draining: stop.is_draining(),
+            aborted: stop.is_aborted(),
             wall_seconds: started.elapsed().as_secs_f64(),
         },
         &edge_counters,
@@ -338,6 +339,8 @@ struct Ending {
     failures: Vec<RunError>,
     startup_error: Option<RunError>,
     draining: bool,
+    /// The stop handle was aborted (by a failure, or by the user).
+    aborted: bool,
     wall_seconds: f64,
 }
 
@@ -350,6 +353,7 @@ fn report(spec: &GraphSpec, ending: Ending, counters: &[Arc<EdgeCounters>]) -> R
         mut failures,
         startup_error,
         draining,
+        aborted,
         wall_seconds,
     } = ending;
     let mut nodes: Vec<NodeReport> = reports.into_iter().flatten().collect();
@@ -390,8 +394,16 @@ fn report(spec: &GraphSpec, ending: Ending, counters: &[Arc<EdgeCounters>]) -> R
             nodes: hung.clone(),
             grace_ms: spec.settings.shutdown_grace_ms,
         })
+    } else if aborted {
+        Some(RunError::Aborted {
+            unfinished: nodes
+                .iter()
+                .filter(|n| !n.finished)
+                .map(|n| n.id.clone())
+                .collect(),
+        })
     } else {
-        None
+        nothing_done(&nodes, draining)
     };
     if !hung.is_empty() {
         warn!(
@@ -400,6 +412,7 @@ fn report(spec: &GraphSpec, ending: Ending, counters: &[Arc<EdgeCounters>]) -> R
         );
     }
     let outcome = match &error {
+        Some(error @ RunError::Aborted { .. }) => error.to_string(),
         Some(error) => format!("failed: {error}"),
         None if draining => "drained".to_string(),
         None => "completed".to_string(),
@@ -414,6 +427,31 @@ fn report(spec: &GraphSpec, ending: Ending, counters: &[Arc<EdgeCounters>]) -> R
         },
         error,
     }
+}
+
+/// A run that made nothing: no source produced an item (a dataset past its `start`, a shard
+/// with no scenes), or a node skipped every item it was given. A drained run may stop before
+/// its first item; that is the user's choice, not a fault.
+fn nothing_done(nodes: &[NodeReport], draining: bool) -> Option<RunError> {
+    let sources: Vec<&NodeReport> = nodes.iter().filter(|n| n.role == "source").collect();
+    let produced: u64 = sources.iter().map(|n| n.items_out).sum();
+    let skipped: u64 = sources.iter().map(|n| n.skips).sum();
+    if produced == 0 && !draining {
+        return Some(RunError::NothingDone(if skipped > 0 {
+            format!("the sources skipped all {skipped} items they read (see the warnings above)")
+        } else {
+            "the sources produced no items (a `start` past the end, a shard with no scenes, an empty selection?)".into()
+        }));
+    }
+    nodes
+        .iter()
+        .find(|n| n.role != "source" && n.items_in > 0 && n.skips == n.items_in)
+        .map(|n| {
+            RunError::NothingDone(format!(
+                "node '{}' skipped all {} items it received (see the warnings above)",
+                n.id, n.skips
+            ))
+        })
 }
 
 fn run_node(thread: NodeThread, node: Node, shared: &Shared) -> NodeReport {
@@ -530,6 +568,7 @@ fn drive_source(mut thread: NodeThread, source: &mut dyn Source, shared: &Shared
             observer.item_released();
         }
     }
+    thread.report.finished = !shared.stop.is_aborted();
     thread.report
 }
 
@@ -669,6 +708,7 @@ fn drive_consumer(
         Consumer::Sink(sink) => guarded(&thread.who, shared, || sink.finish()),
     };
     thread.report.items_out += thread.outputs.sent() - before;
+    thread.report.finished = !shared.stop.is_aborted();
     thread.report
 }
 

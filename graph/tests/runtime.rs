@@ -355,3 +355,80 @@ fn fan_out_shares_payloads_instead_of_copying() {
     let copy = message.clone();
     assert!(copy.shares_payload_with(&message));
 }
+
+#[test]
+fn a_run_that_makes_nothing_is_an_error_naming_why() {
+    let outcome = run_yaml(
+        r#"
+nodes:
+  - {id: src, kind: count, params: {count: 0}}
+  - {id: out, kind: record, params: {name: nothing_out}}
+edges:
+  - {from: src.out, to: out.in}
+"#,
+    );
+    match &outcome.error {
+        Some(RunError::NothingDone(why)) => assert!(why.contains("no items"), "{why}"),
+        other => panic!("{other:?}"),
+    }
+    // Every item skipped by a node is nothing done too.
+    let outcome = run_yaml(
+        r#"
+nodes:
+  - {id: src, kind: count, params: {count: 6}}
+  - {id: picky, kind: pass, on_error: skip, params: {reject_every: 1}}
+  - {id: out, kind: record, params: {name: all_skipped_out}}
+edges:
+  - {from: src.out, to: picky.in}
+  - {from: picky.out, to: out.in}
+"#,
+    );
+    match &outcome.error {
+        Some(RunError::NothingDone(why)) => {
+            assert!(why.contains("'picky'") && why.contains("all 6"), "{why}")
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn an_abort_names_the_nodes_that_did_not_finish() {
+    let graph = resolve(
+        r#"
+nodes:
+  - {id: src, kind: count}
+  - {id: slow, kind: record, params: {name: abort_out, sleep_us: 20000}}
+edges:
+  - {from: src.out, to: slow.in}
+"#,
+        "test.yaml",
+        &registry(),
+        &[],
+    )
+    .unwrap_or_else(|d| panic!("{d}"));
+    let stop = StopHandle::new();
+    let aborter = stop.clone();
+    std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(200));
+        aborter.abort();
+    });
+    let outcome = run(
+        graph,
+        RunOptions {
+            stop,
+            observer: None,
+        },
+    );
+    match &outcome.error {
+        Some(RunError::Aborted { unfinished }) => {
+            assert!(unfinished.contains(&"slow".to_string()), "{unfinished:?}")
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(
+        outcome.report.outcome.starts_with("aborted"),
+        "{}",
+        outcome.report.outcome
+    );
+    assert!(!outcome.report.node("slow").unwrap().finished);
+}
