@@ -719,3 +719,40 @@ fn a_run_that_produces_nothing_fails_saying_so() {
         text(&output)
     );
 }
+
+#[test]
+fn synth_never_writes_into_another_dataset() {
+    for foreign in ["v1.0-mini", "velodyne"] {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join(foreign)).unwrap();
+        std::fs::create_dir_all(dir.path().join("samples/CAM_FRONT")).unwrap();
+        let out = dir.path().to_str().unwrap();
+        for extra in [&[][..], &["--overwrite"][..]] {
+            let mut args = vec![
+                "synth",
+                "--out",
+                out,
+                "--seconds",
+                "0.5",
+                "--camera-size",
+                "64x36",
+            ];
+            args.extend_from_slice(extra);
+            let output = bevworld(&args);
+            assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+            assert!(
+                text(&output).contains("another dataset"),
+                "{}",
+                text(&output)
+            );
+            assert!(!dir.path().join("v1.0-synth").exists());
+            assert_eq!(
+                std::fs::read_dir(dir.path().join("samples/CAM_FRONT"))
+                    .unwrap()
+                    .count(),
+                0,
+                "nothing written into the other dataset's samples"
+            );
+        }
+    }
+}

@@ -66,6 +66,21 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     if !(0.0..=1.0).contains(&args.ray_drop) || args.range_noise < 0.0 {
         bail!("--ray-drop must be in [0, 1] and --range-noise >= 0");
     }
+    // Never into another dataset: its samples/ and sweeps/ would be mixed with ours, and
+    // --overwrite would replace files that are not ours to replace.
+    if let Ok(entries) = std::fs::read_dir(&args.out) {
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().to_string();
+            let foreign_tables =
+                name.starts_with("v1.0-") && name != bevworld_sensors::synth::VERSION;
+            if foreign_tables || name == "velodyne" {
+                bail!(
+                    "{} holds another dataset ({name}); write the synthetic world into a folder of its own",
+                    args.out.display()
+                );
+            }
+        }
+    }
     let tables = args.out.join(bevworld_sensors::synth::VERSION);
     if tables.exists() && !args.overwrite {
         bail!(
