@@ -259,3 +259,25 @@ fn impossible_focal_lengths_are_refused_naming_the_calibration() {
         );
     }
 }
+
+#[test]
+fn a_truncated_jpeg_is_an_error_not_a_grey_image() {
+    let Some(dir) = sample_copy() else {
+        return;
+    };
+    let folder = dir.path().join("samples/CAM_FRONT");
+    let path = std::fs::read_dir(folder)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let bytes = std::fs::read(&path).unwrap();
+    // Cut to a third, as an interrupted copy leaves it.
+    std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
+    let error = open(dir.path()).unwrap().read(0).err().unwrap().to_string();
+    assert!(
+        error.contains("CAM_FRONT") && error.contains("truncated JPEG"),
+        "{error}"
+    );
+}
