@@ -1,5 +1,7 @@
 //! The `bevworld` tool as a user runs it: exit codes, error messages and written files.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -651,21 +653,7 @@ fn a_second_ctrl_c_aborts_and_says_so_with_exit_130() {
         metrics.display().to_string(),
         "--no-progress".into(),
     ];
-    for sink in [
-        "inputs",
-        "reconstructions",
-        "pairs",
-        "input_sweep",
-        "rendered_sweep",
-    ] {
-        args.push("--set".into());
-        args.push(format!("{sink}.out={}", out.path().display()));
-    }
-    args.push("--set".into());
-    args.push(format!(
-        "metrics.csv={}",
-        out.path().join("metrics.csv").display()
-    ));
+    args.extend(common::reconstruct_outputs(out.path()));
     let child = spawn_run(&args);
     // Let the model load and frames flow, then interrupt twice while the drain is under way.
     let started = std::time::Instant::now();

@@ -18,7 +18,6 @@ use std::sync::Arc;
 use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink};
 use bevworld_plot::{Cloud, caption, top_down};
 use bevworld_types::{ForecastMethod, FutureView, ImageSet, PointCloud, RenderedFuture};
-use glam::DVec3;
 use image::imageops::FilterType;
 use image::{ImageFormat, RgbImage};
 use serde::{Deserialize, Serialize};
@@ -81,22 +80,6 @@ fn png(image: &RgbImage, name: &str) -> Result<Vec<u8>, NodeError> {
         .write_to(&mut Cursor::new(&mut bytes), ImageFormat::Png)
         .map_err(|error| NodeError::item(format!("encoding {name} as PNG: {error}")))?;
     Ok(bytes)
-}
-
-/// The sweep in its ego frame, `(x, y, z)`.
-fn ego_points(cloud: &PointCloud) -> Vec<[f32; 3]> {
-    cloud
-        .points
-        .iter()
-        .map(|p| {
-            let q = cloud.ego_from_lidar.transform_point3(DVec3::new(
-                p.x.into(),
-                p.y.into(),
-                p.z.into(),
-            ));
-            [q.x as f32, q.y as f32, q.z as f32]
-        })
-        .collect()
 }
 
 fn ply(points: &[[f32; 3]], comment: &str) -> Result<Vec<u8>, NodeError> {
@@ -211,7 +194,7 @@ impl Sink for ForecastSink {
             "bevworld forecast, ego frame; context {}; horizon {} s; timestamp_us {}",
             view.context.frame_token, view.horizon_s, view.latent.meta.time_of_validity_us
         );
-        let forecast_points = rendered.lidar.as_ref().map(ego_points);
+        let forecast_points = rendered.lidar.as_ref().map(PointCloud::ego_points);
         let truth_points = view.truth.as_ref().map(|t| t.lidar.scene_ego_points());
         if let Some(points) = &forecast_points {
             self.writes
