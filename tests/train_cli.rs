@@ -93,6 +93,38 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     assert_eq!(again.status.code(), Some(1));
     assert!(text(&again).contains("--resume"), "{}", text(&again));
 
+    // A checkpoint edited after it was written is refused, naming the file, and the run
+    // folder is left as it was.
+    let checkpoint = run.join("checkpoints/step-0000003");
+    let state_path = checkpoint.join("state.json");
+    let state = std::fs::read_to_string(&state_path).expect("state");
+    std::fs::write(&state_path, state.replace("\"step\": 3", "\"step\": 999")).expect("edit");
+    let edited = call(args("5", true));
+    assert_eq!(edited.status.code(), Some(1), "{}", text(&edited));
+    assert!(text(&edited).contains("state.json"), "{}", text(&edited));
+    assert!(
+        !text(&edited).contains("resumed at step"),
+        "{}",
+        text(&edited)
+    );
+    std::fs::write(&state_path, &state).expect("restore");
+    let model_file = checkpoint.join("model.bpk");
+    let model_bytes = std::fs::read(&model_file).expect("model");
+    let mut flipped = model_bytes.clone();
+    let middle = flipped.len() / 2;
+    flipped[middle] ^= 0x01;
+    std::fs::write(&model_file, &flipped).expect("flip");
+    let corrupt = call(args("5", true));
+    assert_eq!(corrupt.status.code(), Some(1), "{}", text(&corrupt));
+    assert!(text(&corrupt).contains("model.bpk"), "{}", text(&corrupt));
+    std::fs::write(&model_file, &model_bytes).expect("restore");
+    // Without --resume, a run over a checkpoint, even a broken one, is refused.
+    std::fs::write(&model_file, &flipped).expect("flip");
+    let over = call(args("3", false));
+    assert_eq!(over.status.code(), Some(1), "{}", text(&over));
+    assert!(text(&over).contains("--resume"), "{}", text(&over));
+    std::fs::write(&model_file, &model_bytes).expect("restore");
+
     // The run folder's own configs resume it, and survive being read and rewritten.
     let model_yaml = std::fs::read_to_string(run.join("tokenizer.yaml")).expect("model config");
     let mut resume_args = args("5", true);

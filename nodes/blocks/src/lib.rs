@@ -28,7 +28,5 @@ pub use cache::TensorCache;
 pub use embedding::{sinusoidal_1d, sinusoidal_2d, timestep_embedding};
 pub use init::seeded_init;
 pub use mlp::{Mlp, MlpConfig};
-pub use module_file::{
-    ModuleFileError, check_file, file_digest, first_non_finite, load_module, save_module,
-};
+pub use module_file::{ModuleFileError, check_file, first_non_finite, load_module, save_module};
 pub use torch_weights::{TorchLoadError, load_torch_state_dict};

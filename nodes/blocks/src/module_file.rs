@@ -179,15 +179,3 @@ pub fn check_file(what: &str, path: &Path) -> Result<(), ModuleFileError> {
     }
     Ok(())
 }
-
-/// A short fingerprint of a file (FNV-1a, 64 bit, hex), stamped on every product so that
-/// exported features say which weights made them.
-pub fn file_digest(path: &Path) -> std::io::Result<String> {
-    let bytes = std::fs::read(path)?;
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    for byte in bytes {
-        hash ^= u64::from(byte);
-        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    Ok(format!("{hash:016x}"))
-}

@@ -6,7 +6,7 @@ use bevworld_blocks::init::{random_normal, random_tensor};
 use bevworld_blocks::swin::{SwinBlockConfig, SwinConfig};
 use bevworld_blocks::{
     AdaLnModulationConfig, ModuleFileError, MultiHeadAttentionConfig, TensorCache, causal_mask,
-    file_digest, load_module, modulate, save_module, seeded_init, sinusoidal_1d, sinusoidal_2d,
+    load_module, modulate, save_module, seeded_init, sinusoidal_1d, sinusoidal_2d,
     timestep_embedding,
 };
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
@@ -272,13 +272,4 @@ fn weights_holding_a_nan_are_refused_naming_the_tensor() {
         }
         other => panic!("expected a non-finite refusal, got {other:?}"),
     }
-}
-
-#[test]
-fn the_file_digest_is_fnv1a_64() {
-    let dir = tempfile::tempdir().expect("dir");
-    let path = dir.path().join("a.txt");
-    std::fs::write(&path, b"a").expect("write");
-    // FNV-1a 64 of "a", from the reference tables.
-    assert_eq!(file_digest(&path).expect("digest"), "af63dc4c8601ec8c");
 }

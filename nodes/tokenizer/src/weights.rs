@@ -33,7 +33,7 @@ pub fn load_weights(
 /// A short fingerprint of a weights file (FNV-1a, 64 bit, hex), stamped on every product so
 /// that exported features say which weights made them.
 pub fn weights_digest(path: &Path) -> Result<String, WeightsError> {
-    module_file::file_digest(path).map_err(|e| ModuleFileError::Io {
+    bevworld_types::file_digest(path).map_err(|e| ModuleFileError::Io {
         what: WHAT.into(),
         path: path.to_path_buf(),
         message: e.to_string(),

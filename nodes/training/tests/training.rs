@@ -235,3 +235,69 @@ fn a_panicking_item_fails_the_map_with_one_thread_as_with_many() {
         );
     }
 }
+
+#[test]
+fn a_checkpoint_is_refused_when_its_step_or_files_were_changed() {
+    use bevworld_training::checkpoint::{self, CheckpointError, CheckpointState};
+    let dir = tempfile::tempdir().expect("dir");
+    let run = dir.path();
+    let staged = checkpoint::staging(run, 5).expect("staging");
+    std::fs::write(staged.file("model.bpk"), b"weights of step five").expect("write");
+    std::fs::write(staged.file("optimizer.bpk"), b"moments").expect("write");
+    let state = CheckpointState {
+        step: 5,
+        rng_state: 42,
+    };
+    let folder = checkpoint::commit(run, staged, &state, 3).expect("commit");
+    let (_, read) = checkpoint::latest(run).expect("a checkpoint as written resumes");
+    assert_eq!(read, state);
+
+    let refusal = |what: &str| -> String {
+        match checkpoint::latest(run) {
+            Err(error @ CheckpointError::Io { .. }) => error.to_string(),
+            other => panic!("{what}: expected a refusal, got {other:?}"),
+        }
+    };
+    let state_path = folder.join("state.json");
+    let original = std::fs::read_to_string(&state_path).expect("state");
+    for edited in [999, 25] {
+        let text = original.replace("\"step\": 5", &format!("\"step\": {edited}"));
+        assert_ne!(text, original);
+        std::fs::write(&state_path, text).expect("edit");
+        let message = refusal("an edited step");
+        assert!(message.contains("state.json"), "{message}");
+        assert!(message.contains(&format!("step {edited}")), "{message}");
+        assert!(message.contains("step-0000005"), "{message}");
+    }
+    std::fs::write(&state_path, &original).expect("restore");
+
+    let model = folder.join("model.bpk");
+    let mut bytes = std::fs::read(&model).expect("model");
+    bytes[3] ^= 0x40;
+    std::fs::write(&model, &bytes).expect("flip");
+    let message = refusal("a flipped byte");
+    assert!(message.contains("model.bpk"), "{message}");
+    assert!(message.contains("digest"), "{message}");
+    bytes[3] ^= 0x40;
+    std::fs::write(&model, &bytes).expect("unflip");
+    assert!(checkpoint::latest(run).is_ok());
+
+    std::fs::remove_file(folder.join("optimizer.bpk")).expect("remove");
+    let message = refusal("a missing file");
+    assert!(message.contains("optimizer.bpk"), "{message}");
+    std::fs::write(folder.join("optimizer.bpk"), b"moments").expect("restore");
+
+    std::fs::write(folder.join("stray.bpk"), b"from another run").expect("stray");
+    let message = refusal("a file it did not write");
+    assert!(message.contains("stray.bpk"), "{message}");
+    std::fs::remove_file(folder.join("stray.bpk")).expect("remove");
+
+    // The pointer must name a checkpoint folder, not a path out of the run.
+    std::fs::write(
+        checkpoint::checkpoints_dir(run).join("latest"),
+        "../../elsewhere",
+    )
+    .expect("pointer");
+    let message = refusal("a pointer out of the folder");
+    assert!(message.contains("latest"), "{message}");
+}

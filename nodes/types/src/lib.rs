@@ -12,6 +12,7 @@
 pub mod action;
 pub mod bev;
 pub mod camera;
+pub mod digest;
 pub mod ego_body;
 pub mod forecast;
 pub mod frame;
@@ -26,6 +27,7 @@ pub mod problem;
 pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
+pub use digest::{bytes_digest, file_digest};
 pub use ego_body::EgoBody;
 pub use forecast::{
     Forecast, ForecastHorizon, ForecastMethod, FutureView, LatentWindow, LoggedPose,

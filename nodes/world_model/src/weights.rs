@@ -127,7 +127,7 @@ pub fn load_weights(
         });
     }
     let model = module_file::load_module(config.init(device), WHAT, &config.name, path)?;
-    let digest = module_file::file_digest(path).map_err(|e| ModuleFileError::Io {
+    let digest = bevworld_types::file_digest(path).map_err(|e| ModuleFileError::Io {
         what: WHAT.into(),
         path: path.to_path_buf(),
         message: e.to_string(),

@@ -296,15 +296,21 @@ pub fn train(
     }
     let (config, mut model) = configs(request)?;
     keep_what_the_run_started_with(request, &mut model)?;
-    let latest = checkpoint::latest(&request.out);
-    if latest.is_ok() && !request.resume {
-        return Err(RunError::Exists {
-            run: request.out.clone(),
-        });
-    }
+    // A checkpoint that fails its checks is still a run's: never start over it, and refuse to
+    // resume from it before any data load.
+    let latest = match (checkpoint::latest(&request.out), request.resume) {
+        (Err(checkpoint::CheckpointError::None { .. }), _) => None,
+        (_, false) => {
+            return Err(RunError::Exists {
+                run: request.out.clone(),
+            });
+        }
+        (Err(error), true) => return Err(error.into()),
+        (Ok(found), true) => Some(found),
+    };
     // A run started without a weight average has none to continue; say how to resume it
     // before any data load.
-    if let (true, Some(_), Ok((files, _))) = (request.resume, config.ema_decay, &latest) {
+    if let (Some(_), Some((files, _))) = (config.ema_decay, &latest) {
         let missing = files.file(files::WEIGHT_AVERAGE);
         if !missing.is_file() {
             return Err(RunError::NoAverageToResume {

@@ -7,11 +7,11 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use bevworld_blocks::file_digest;
 use bevworld_training::checkpoint;
 use bevworld_training::curves::CurvesError;
 use bevworld_training::metrics_log::MetricsLogError;
 use bevworld_training::{LoopPlan, MetricsLog, Observer, Trainee, plot_curves, run_loop};
+use bevworld_types::file_digest;
 use bevworld_types::{LatentStatsFile, StatsFileError, stats_path_for};
 use bevworld_world_model::config::ConfigError as ModelConfigError;
 use bevworld_world_model::weights::{WorldModelWeightsError, save_weights};
@@ -255,12 +255,18 @@ pub fn train(
     if request.until == Some(0) {
         return Err(RunError::NoSteps);
     }
-    let has_checkpoint = checkpoint::latest(&request.out).is_ok();
-    if has_checkpoint && !request.resume {
-        return Err(RunError::Exists {
-            run: request.out.clone(),
-        });
-    }
+    // A checkpoint that fails its checks is still a run's: never start over it, and refuse to
+    // resume from it before any data load.
+    let has_checkpoint = match (checkpoint::latest(&request.out), request.resume) {
+        (Err(checkpoint::CheckpointError::None { .. }), _) => false,
+        (Ok(_), true) => true,
+        (_, false) => {
+            return Err(RunError::Exists {
+                run: request.out.clone(),
+            });
+        }
+        (Err(error), true) => return Err(error.into()),
+    };
     let device = device.clone().autodiff();
     let device = &device;
     let tokenizer = tokenizer_identity(&config.tokenizer_weights)?;
