@@ -307,6 +307,76 @@ fn shard_and_overwrite_flags_reach_the_nodes() {
 }
 
 #[test]
+fn four_shards_at_once_into_one_folder_index_every_file_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    synth_small(&data, &["--scenes", "8", "--seconds", "1"]);
+    let out = dir.path().join("features");
+    // A temporary a killed writer left: the first shard to start removes it, and no shard
+    // removes another's.
+    std::fs::create_dir_all(&out).unwrap();
+    let stale = out.join("old.npy.4000000000.0.tmp");
+    std::fs::write(&stale, b"left by a kill").unwrap();
+    let shards: Vec<std::process::Child> = (0..4)
+        .map(|shard| {
+            Command::new(env!("CARGO_BIN_EXE_bevworld"))
+                .args([
+                    "run",
+                    "configs/graphs/export_bev_stats.yaml",
+                    "--set",
+                    &format!("source.data={}", data.display()),
+                    "--set",
+                    &format!("export.out={}", out.display()),
+                    "--shard",
+                    &format!("{shard}/4"),
+                    "--no-progress",
+                ])
+                .current_dir(env!("CARGO_MANIFEST_DIR"))
+                .stdout(std::process::Stdio::piped())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for child in shards {
+        let output = child.wait_with_output().unwrap();
+        assert!(output.status.success(), "{}", text(&output));
+    }
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
+    let mut listed: Vec<String> = index["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["file"].as_str().unwrap().to_string())
+        .collect();
+    listed.sort();
+    let mut on_disk: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".npy"))
+        .collect();
+    on_disk.sort();
+    // Eight scenes of two keyframes each: sixteen files, each listed once.
+    assert_eq!(on_disk.len(), 16, "{on_disk:?}");
+    assert_eq!(listed, on_disk);
+    let scenes: std::collections::BTreeSet<&str> = index["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["scene"].as_str().unwrap())
+        .collect();
+    assert_eq!(scenes.len(), 8);
+    assert!(!stale.exists(), "a dead writer's temporary is removed");
+    let leftovers: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+#[test]
 fn bad_set_syntax_is_an_error() {
     let output = bevworld(&["check", "configs/graphs/replay.yaml", "--set", "nodot"]);
     assert_eq!(output.status.code(), Some(1));

@@ -82,6 +82,83 @@ fn temporary_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// The writer process a temporary file of `temporary_path` names, if `name` is one.
+fn temporary_owner(name: &str) -> Option<u32> {
+    let stem = name.strip_suffix(".tmp")?;
+    let (rest, unique) = stem.rsplit_once('.')?;
+    unique.parse::<u64>().ok()?;
+    let (_, pid) = rest.rsplit_once('.')?;
+    pid.parse().ok()
+}
+
+/// Whether process `pid` still runs. Where that cannot be known, it is taken to run, so that
+/// nothing another writer may still be writing is ever removed.
+fn process_runs(pid: u32) -> bool {
+    let proc_root = Path::new("/proc");
+    if cfg!(target_os = "linux") && proc_root.join("self").exists() {
+        proc_root.join(pid.to_string()).exists()
+    } else {
+        true
+    }
+}
+
+/// Removes the temporary files in `dir` that a killed writer left behind, and only those. A
+/// temporary names the process writing it; one whose process still runs belongs to a writer
+/// at work in the same folder (another shard, another sink) and is left alone. Returns how
+/// many were removed.
+pub fn remove_stale_temporaries(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().to_string();
+        let Some(pid) = temporary_owner(&name) else {
+            continue;
+        };
+        if !process_runs(pid) && std::fs::remove_file(entry.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+/// Rewrites the file at `path` as `update` makes it from its current bytes (`None` when there
+/// is no file yet), holding an exclusive lock on `<path>.lock` meanwhile, so that writers in
+/// several processes (shards sharing one index) each merge into the others' result instead of
+/// replacing it. The write itself is atomic, so readers need no lock.
+pub fn update_locked<E>(
+    path: &Path,
+    update: impl FnOnce(Option<Vec<u8>>) -> Result<Vec<u8>, E>,
+) -> Result<Result<(), E>, std::io::Error> {
+    let mut lock_name = path
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_default();
+    lock_name.push(".lock");
+    let lock_path = path.with_file_name(lock_name);
+    let lock = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock_path)?;
+    lock.lock()?;
+    let current = match std::fs::read(path) {
+        Ok(bytes) => Some(bytes),
+        Err(error) if error.kind() == std::io::ErrorKind::NotFound => None,
+        Err(error) => return Err(error),
+    };
+    let outcome = match update(current) {
+        Ok(bytes) => {
+            write_atomic_now(path, &bytes)?;
+            Ok(())
+        }
+        Err(error) => Err(error),
+    };
+    lock.unlock()?;
+    Ok(outcome)
+}
+
 /// Runs a blocking I/O job (reading a frame's files) on the I/O pool.
 pub fn spawn_io<T, F>(job: F) -> std::io::Result<JoinHandle<T>>
 where
@@ -131,6 +208,58 @@ mod tests {
             .map(|e| e.unwrap().file_name())
             .collect();
         assert_eq!(names.len(), 1);
+    }
+
+    #[test]
+    fn only_temporaries_of_writers_that_are_gone_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        // Ours (this process runs), a dead writer's (pid far above any running one), and
+        // files that only look like temporaries.
+        let ours = dir
+            .path()
+            .join(format!("a.npy.{}.0.tmp", std::process::id()));
+        let dead = dir.path().join("b.npy.4000000000.3.tmp");
+        let kept = ["c.npy", "notes.tmp", "d.npy.x.1.tmp", "e.npy.12.y.tmp"];
+        std::fs::write(&ours, b"in flight").unwrap();
+        std::fs::write(&dead, b"left by a kill").unwrap();
+        for name in kept {
+            std::fs::write(dir.path().join(name), b"").unwrap();
+        }
+        assert_eq!(temporary_owner("a.npy.17.0.tmp"), Some(17));
+        assert_eq!(temporary_owner("notes.tmp"), None);
+        let removed = remove_stale_temporaries(dir.path());
+        if cfg!(target_os = "linux") {
+            assert_eq!(removed, 1);
+            assert!(!dead.exists());
+        }
+        assert!(ours.exists(), "a running writer's temporary must stay");
+        for name in kept {
+            assert!(dir.path().join(name).exists(), "{name}");
+        }
+    }
+
+    #[test]
+    fn locked_updates_from_many_threads_lose_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("index.txt");
+        std::thread::scope(|scope| {
+            for writer in 0..8 {
+                let path = &path;
+                scope.spawn(move || {
+                    for item in 0..10 {
+                        update_locked(path, |current| {
+                            let mut text = String::from_utf8(current.unwrap_or_default()).unwrap();
+                            text.push_str(&format!("{writer}-{item}\n"));
+                            Ok::<_, ()>(text.into_bytes())
+                        })
+                        .unwrap()
+                        .unwrap();
+                    }
+                });
+            }
+        });
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(text.lines().count(), 80, "{text}");
     }
 
     #[test]

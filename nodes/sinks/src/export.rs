@@ -5,13 +5,16 @@
 //!   tensor named `features`, with the channel meanings in its metadata).
 //! - Writes are atomic. A rerun skips files that exist unless `overwrite` is set, so a killed
 //!   run restarted with the same command completes the set without duplicates; temporary files
-//!   a kill left behind are removed at start.
+//!   a kill left behind are removed at start, and only those (a temporary names its writer's
+//!   process; a running writer's are left alone).
 //! - A file is kept only when an index in the folder says it was made by the same model and
 //!   weights as the features now arriving. Made by others, it is refused (naming both digests
 //!   and `overwrite`): keeping it would relabel it. Of unknown origin (a run killed before it
 //!   wrote its index), it is written again.
-//! - The index is merged with an existing one (entries keyed by frame token) and written
-//!   atomically at the end. Shards writing to one folder each name their own `index`.
+//! - At the end the run's entries are merged into the index on disk (keyed by frame token),
+//!   under an exclusive lock on `<index>.lock`, and the index is replaced atomically. So shards
+//!   (`--shard I/N`) can share one folder and one `index.json`: each adds its frames, none loses
+//!   another's. An `index` of its own per shard works too.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -119,14 +122,9 @@ impl Sink for ExportSink {
         std::fs::create_dir_all(out).map_err(|e| {
             NodeError::fatal(format!("{}: cannot create folder: {e}", out.display()))
         })?;
-        // A killed run may have left temporary files: they are never valid outputs.
-        if let Ok(entries) = std::fs::read_dir(out) {
-            for entry in entries.flatten() {
-                if entry.file_name().to_string_lossy().ends_with(".tmp") {
-                    let _ = std::fs::remove_file(entry.path());
-                }
-            }
-        }
+        // A killed run may have left temporary files: they are never valid outputs. Those of a
+        // writer still at work (another shard in this folder) are its own business.
+        bevworld_graph::io::remove_stale_temporaries(out);
         // Every index in the folder (each shard's, each pass's) says who made its files.
         if let Ok(entries) = std::fs::read_dir(out) {
             for entry in entries.flatten() {
@@ -152,18 +150,14 @@ impl Sink for ExportSink {
                 }
             }
         }
+        // The index this run merges into must be readable: refuse it now, not after the work.
         let index = out.join(&self.params.index);
         if index.exists() {
             let text = std::fs::read_to_string(&index)
                 .map_err(|e| NodeError::fatal(format!("{}: cannot read: {e}", index.display())))?;
-            let existing: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+            serde_json::from_str::<serde_json::Value>(&text).map_err(|e| {
                 NodeError::fatal(format!("{}: not a valid index: {e}", index.display()))
             })?;
-            for entry in existing["frames"].as_array().into_iter().flatten() {
-                if let Some(token) = entry["frame_token"].as_str() {
-                    self.entries.insert(token.to_string(), entry.clone());
-                }
-            }
         }
         Ok(())
     }
@@ -236,13 +230,40 @@ impl Sink for ExportSink {
 
     fn finish(&mut self) -> Result<(), NodeError> {
         self.writes.flush()?;
-        let frames: Vec<&serde_json::Value> = self.entries.values().collect();
-        let index = serde_json::json!({"format": match self.params.format { ExportFormat::Npy => "npy", ExportFormat::Safetensors => "safetensors" }, "frames": frames});
+        // Merged under the index's lock, into what is on disk now: shards sharing one index
+        // each add their entries, and none replaces another's.
         let path = self.params.out.join(&self.params.index);
-        let bytes =
-            serde_json::to_vec_pretty(&index).map_err(|e| NodeError::fatal(e.to_string()))?;
-        bevworld_graph::io::write_atomic_now(&path, &bytes)
-            .map_err(|e| NodeError::fatal(format!("{}: write failed: {e}", path.display())))
+        let format = match self.params.format {
+            ExportFormat::Npy => "npy",
+            ExportFormat::Safetensors => "safetensors",
+        };
+        let ours = &self.entries;
+        let merged = bevworld_graph::io::update_locked(&path, |current| {
+            let mut frames: BTreeMap<String, serde_json::Value> = BTreeMap::new();
+            if let Some(bytes) = current {
+                let existing: serde_json::Value = serde_json::from_slice(&bytes)
+                    .map_err(|e| format!("not a valid index: {e}"))?;
+                for entry in existing["frames"].as_array().into_iter().flatten() {
+                    if let Some(token) = entry["frame_token"].as_str() {
+                        frames.insert(token.to_string(), entry.clone());
+                    }
+                }
+            }
+            for (token, entry) in ours {
+                frames.insert(token.clone(), entry.clone());
+            }
+            let frames: Vec<&serde_json::Value> = frames.values().collect();
+            serde_json::to_vec_pretty(&serde_json::json!({"format": format, "frames": frames}))
+                .map_err(|e| e.to_string())
+        });
+        match merged {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(message)) => Err(NodeError::fatal(format!("{}: {message}", path.display()))),
+            Err(e) => Err(NodeError::fatal(format!(
+                "{}: index update failed: {e}",
+                path.display()
+            ))),
+        }
     }
 
     fn report(&self) -> Figures {

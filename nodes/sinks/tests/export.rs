@@ -103,8 +103,9 @@ fn reruns_skip_existing_files_unless_overwrite_and_keep_the_index_whole() {
         &[features("a", 0.0)],
     );
     assert_eq!(first["files_written"], 1.0);
-    // A leftover temporary file from a killed run is removed at start.
-    std::fs::write(dir.path().join("b.npy.999.tmp"), b"partial").unwrap();
+    // A leftover temporary file from a killed run (its writer process is gone) is removed
+    // at start.
+    std::fs::write(dir.path().join("b.npy.4000000000.0.tmp"), b"partial").unwrap();
     let second = export(
         serde_json::json!({"out": dir.path()}),
         &[features("a", 7.0), features("b", 0.0)],
@@ -113,7 +114,7 @@ fn reruns_skip_existing_files_unless_overwrite_and_keep_the_index_whole() {
         (second["files_written"], second["skipped_existing"]),
         (1.0, 1.0)
     );
-    assert!(!dir.path().join("b.npy.999.tmp").exists());
+    assert!(!dir.path().join("b.npy.4000000000.0.tmp").exists());
     let (_, kept) = read_npy_f32(&std::fs::read(dir.path().join("a.npy")).unwrap()).unwrap();
     assert_eq!(kept[0], 0.0, "an existing file is not rewritten");
     let third = export(
