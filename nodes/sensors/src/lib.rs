@@ -5,6 +5,7 @@
 
 pub mod dataset;
 pub mod error;
+pub mod image_file;
 pub mod inspect;
 pub mod kitti;
 pub mod lidar_file;

@@ -281,3 +281,37 @@ fn a_truncated_jpeg_is_an_error_not_a_grey_image() {
         "{error}"
     );
 }
+
+#[test]
+fn a_jpeg_with_scrambled_bytes_is_an_error_not_a_grey_image() {
+    let Some(dir) = sample_copy() else {
+        return;
+    };
+    let folder = dir.path().join("samples/CAM_FRONT");
+    let path = std::fs::read_dir(folder)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let bytes = std::fs::read(&path).unwrap();
+    // Whole, it decodes.
+    assert!(bevworld_sensors::image_file::decode_rgb(&bytes).is_ok());
+    // Scrambled in the entropy-coded middle (a bad sector, a broken copy), with its header
+    // and end-of-image marker intact.
+    let mut scrambled = bytes.clone();
+    let (start, end) = (scrambled.len() / 3, scrambled.len() / 3 + 4096);
+    let mut state = 0x9e37_79b9_u32;
+    for byte in &mut scrambled[start..end] {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        *byte = state as u8;
+    }
+    std::fs::write(&path, &scrambled).unwrap();
+    let error = open(dir.path()).unwrap().read(0).err().unwrap().to_string();
+    assert!(
+        error.contains("CAM_FRONT") && error.contains("corrupt JPEG"),
+        "{error}"
+    );
+}

@@ -443,25 +443,10 @@ impl NuScenes {
         reading: &Reading,
     ) -> Result<CameraImage> {
         let path = self.root.join(&reading.file);
-        // A JPEG cut short decodes without an error, its missing rows filled with grey, and
-        // would be scored as if real: a whole one ends with the end-of-image marker.
-        let is_jpeg = bytes.starts_with(&[0xFF, 0xD8]);
-        let tail = &bytes[bytes.len().saturating_sub(32)..];
-        if is_jpeg && !tail.windows(2).any(|w| w == [0xFF, 0xD9]) {
-            return Err(SensorError::Image {
-                path,
-                message: format!(
-                    "truncated JPEG: {} bytes without the end-of-image marker",
-                    bytes.len()
-                ),
-            });
-        }
-        let image = image::load_from_memory(bytes)
-            .map_err(|error| SensorError::Image {
-                path: path.clone(),
-                message: error.to_string(),
-            })?
-            .into_rgb8();
+        let image = crate::image_file::decode_rgb(bytes).map_err(|message| SensorError::Image {
+            path: path.clone(),
+            message,
+        })?;
         let intrinsics = reading
             .intrinsics
             .ok_or_else(|| SensorError::file(&path, "camera reading without intrinsics"))?;
