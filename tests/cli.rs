@@ -377,6 +377,63 @@ fn four_shards_at_once_into_one_folder_index_every_file_once() {
 }
 
 #[test]
+fn the_source_counts_dropped_points_and_normalised_rotations_in_the_metrics() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    synth_small(&data, &["--scenes", "1", "--seconds", "1"]);
+    // Three NaN coordinates in one sweep (5 floats a point), and one ego pose's rotation
+    // scaled to twice unit length.
+    let sweep = std::fs::read_dir(data.join("samples/LIDAR_TOP"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .min()
+        .unwrap();
+    let mut bytes = std::fs::read(&sweep).unwrap();
+    for point in [0usize, 10, 20] {
+        let at = point * 20;
+        bytes[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    }
+    std::fs::write(&sweep, &bytes).unwrap();
+    let poses = data.join("v1.0-synth/ego_pose.json");
+    let mut table: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&poses).unwrap()).unwrap();
+    for k in 0..4 {
+        let v = table[0]["rotation"][k].as_f64().unwrap();
+        table[0]["rotation"][k] = (2.0 * v).into();
+    }
+    std::fs::write(&poses, serde_json::to_vec(&table).unwrap()).unwrap();
+    let metrics = dir.path().join("m.json");
+    let output = bevworld(&[
+        "run",
+        "configs/graphs/export_bev_stats.yaml",
+        "--set",
+        &format!("source.data={}", data.display()),
+        "--set",
+        &format!("export.out={}", dir.path().join("features").display()),
+        "--metrics",
+        metrics.to_str().unwrap(),
+        "--no-progress",
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
+    let source = report["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["id"] == "source")
+        .unwrap();
+    assert_eq!(source["extra"]["non_finite_points_dropped"], 3.0);
+    assert_eq!(source["extra"]["non_unit_quaternions_normalised"], 1.0);
+    // The table printed at the end shows them.
+    assert!(
+        text(&output).contains("non_finite_points_dropped = 3"),
+        "{}",
+        text(&output)
+    );
+}
+
+#[test]
 fn bad_set_syntax_is_an_error() {
     let output = bevworld(&["check", "configs/graphs/replay.yaml", "--set", "nodot"]);
     assert_eq!(output.status.code(), Some(1));

@@ -44,6 +44,8 @@ pub struct FrameScores {
     /// `None` when the rendered or the true sweep has no point in the ROI: an empty cloud is
     /// reported and counted, never scored as a perfect 0.
     pub chamfer_m2: Option<f64>,
+    /// NaN or infinite points the source dropped from the true sweep.
+    pub truth_non_finite_points_dropped: usize,
 }
 
 /// Why a reconstruction could not be scored.
@@ -137,6 +139,7 @@ pub fn score_frame(
             let result = score_lidar(frame, lidar, roi);
             (result.pred_points > 0 && result.gt_points > 0).then_some(result.chamfer)
         },
+        truth_non_finite_points_dropped: frame.lidar.dropped_non_finite,
     })
 }
 
@@ -170,14 +173,16 @@ impl Sink for ReconstructionMetrics {
         let Some(path) = &self.csv else {
             return Ok(());
         };
-        let mut text = String::from("frame_token,psnr_db,ssim,chamfer_m2\n");
+        let mut text =
+            String::from("frame_token,psnr_db,ssim,chamfer_m2,truth_non_finite_points_dropped\n");
         for s in &self.scores {
             text.push_str(&format!(
-                "{},{:.4},{:.5},{}\n",
+                "{},{:.4},{:.5},{},{}\n",
                 s.frame_token,
                 s.psnr_db,
                 s.ssim,
-                s.chamfer_m2.map_or(String::new(), |c| format!("{c:.5}"))
+                s.chamfer_m2.map_or(String::new(), |c| format!("{c:.5}")),
+                s.truth_non_finite_points_dropped
             ));
         }
         if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -199,6 +204,14 @@ impl Sink for ReconstructionMetrics {
             figures.insert("ssim_mean".into(), mean(|s| s.ssim));
             let chamfers: Vec<f64> = self.scores.iter().filter_map(|s| s.chamfer_m2).collect();
             figures.insert("empty_clouds".into(), (n - chamfers.len()) as f64);
+            // The truth is what the source kept: say how much it could not keep.
+            figures.insert(
+                "truth_non_finite_points_dropped".into(),
+                self.scores
+                    .iter()
+                    .map(|s| s.truth_non_finite_points_dropped as f64)
+                    .sum(),
+            );
             if !chamfers.is_empty() {
                 figures.insert(
                     "chamfer_m2_mean".into(),

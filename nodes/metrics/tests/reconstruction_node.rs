@@ -159,6 +159,7 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     assert_eq!(figures.get("frames_scored"), Some(&1.0));
     assert_eq!(figures.get("psnr_db_mean"), Some(&100.0));
     assert_eq!(figures.get("empty_clouds"), Some(&0.0));
+    assert_eq!(figures.get("truth_non_finite_points_dropped"), Some(&0.0));
 
     // An empty render is not a perfect one: reported, counted and kept out of the mean.
     let empty = bevworld_types::PointCloud {
@@ -168,10 +169,13 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     let scores =
         score_frame(&frame, &inputs_as_render(&frame), &empty, &Roi::FOUR_D_OCC).expect("scores");
     assert_eq!(scores.chamfer_m2, None);
+    // The source dropped 7 NaN points from this sweep's truth: the table says so.
+    let mut dropped = frame.clone();
+    Arc::make_mut(&mut dropped.lidar).dropped_non_finite = 7;
     let inputs = Inputs::from_messages(
         &["frame", "images", "lidar"],
         vec![
-            Some(Message::new(header, frame.clone())),
+            Some(Message::new(header, dropped)),
             Some(Message::new(header, inputs_as_render(&frame))),
             Some(Message::new(header, empty)),
         ],
@@ -179,6 +183,7 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     sink.consume(&inputs).expect("consumed");
     let figures = sink.report();
     assert_eq!(figures.get("empty_clouds"), Some(&1.0));
+    assert_eq!(figures.get("truth_non_finite_points_dropped"), Some(&7.0));
     let mean = *figures.get("chamfer_m2_mean").expect("the real frame's");
     assert!(
         mean > 0.0,

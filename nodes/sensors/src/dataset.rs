@@ -102,6 +102,15 @@ impl Dataset {
         self.len() == 0
     }
 
+    /// Pose rotations that were not unit quaternions and were normalised (KITTI's poses are
+    /// matrices: none).
+    pub fn non_unit_quaternions(&self) -> usize {
+        match self {
+            Dataset::NuScenes(d) => d.non_unit_quaternions(),
+            Dataset::Kitti(_) => 0,
+        }
+    }
+
     /// The frame of a nuScenes sample token.
     pub fn index_of_sample(&self, token: &str) -> Option<usize> {
         match self {

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use bevworld_graph::io::{spawn_io, wait};
 use bevworld_graph::{
-    KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Source, SourceInfo,
+    Figures, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Source, SourceInfo,
 };
 use bevworld_types::{ImageSet, PointCloud, SensorFrame};
 use serde::{Deserialize, Serialize};
@@ -138,6 +138,8 @@ pub struct DatasetSource {
     indices: Vec<usize>,
     cursor: usize,
     prefetch: Option<(usize, JoinHandle<crate::error::Result<FetchedFrame>>)>,
+    /// NaN or infinite LiDAR points dropped from the frames emitted (`non_finite: drop`).
+    non_finite_points_dropped: u64,
 }
 
 impl DatasetSourceParams {
@@ -185,6 +187,7 @@ impl DatasetSource {
             indices: Vec::new(),
             cursor: 0,
             prefetch: None,
+            non_finite_points_dropped: 0,
         })
     }
 
@@ -329,6 +332,7 @@ impl Source for DatasetSource {
         let frame: SensorFrame = dataset
             .decode(fetched.map_err(|e| NodeError::item_from(&e))?)
             .map_err(|e| NodeError::item_from(&e))?;
+        self.non_finite_points_dropped += frame.lidar.dropped_non_finite as u64;
         let time_of_validity = frame.time_of_validity_us;
         out.set_time_of_validity(time_of_validity);
         if out.is_connected("images") {
@@ -339,6 +343,21 @@ impl Source for DatasetSource {
         }
         out.send("frame", frame)?;
         Ok(Some(time_of_validity))
+    }
+
+    fn report(&self) -> Figures {
+        let mut figures = Figures::new();
+        figures.insert(
+            "non_finite_points_dropped".into(),
+            self.non_finite_points_dropped as f64,
+        );
+        if let Some(dataset) = &self.dataset {
+            figures.insert(
+                "non_unit_quaternions_normalised".into(),
+                dataset.non_unit_quaternions() as f64,
+            );
+        }
+        figures
     }
 }
 

@@ -315,3 +315,28 @@ fn a_jpeg_with_scrambled_bytes_is_an_error_not_a_grey_image() {
         "{error}"
     );
 }
+
+#[test]
+fn non_unit_quaternions_are_normalised_and_counted() {
+    let Some(dir) = sample_copy() else {
+        return;
+    };
+    assert_eq!(open(dir.path()).unwrap().non_unit_quaternions(), 0);
+    edit_table(dir.path(), "ego_pose", |rows| {
+        let rotation = &mut rows[0]["rotation"];
+        for k in 0..4 {
+            let v = rotation[k].as_f64().unwrap();
+            rotation[k] = (2.0 * v).into();
+        }
+    });
+    let scaled = open(dir.path()).unwrap();
+    assert_eq!(scaled.non_unit_quaternions(), 1);
+    // Normalised where it is used: the frame's pose is a rotation still.
+    let frame = scaled.read(0).unwrap();
+    let rotation = glam::DMat3::from_mat4(glam::DMat4::from(frame.global_from_ego));
+    let should_be_identity = rotation.transpose() * rotation;
+    assert!(
+        should_be_identity.abs_diff_eq(glam::DMat3::IDENTITY, 1e-9),
+        "{should_be_identity:?}"
+    );
+}

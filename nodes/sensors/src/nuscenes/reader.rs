@@ -65,6 +65,16 @@ pub struct NuScenes {
     version: String,
     frames: Vec<FrameRef>,
     options: NuScenesOptions,
+    non_unit_quaternions: usize,
+}
+
+/// How far from unit a table's quaternion may be before it counts as non-unit: JSON's
+/// decimal round trip leaves real ones within 1e-9.
+const UNIT_QUATERNION_TOLERANCE: f64 = 1e-6;
+
+fn is_non_unit(wxyz: &[f64; 4]) -> bool {
+    let norm = wxyz.iter().map(|v| v * v).sum::<f64>().sqrt();
+    (norm - 1.0).abs() > UNIT_QUATERNION_TOLERANCE
 }
 
 impl NuScenes {
@@ -325,12 +335,26 @@ impl NuScenes {
                 );
             }
         }
+        // Normalised where they are used (a zero or non-finite one was refused above); how many
+        // needed it is a figure of the run, since a table written by hand often has them.
+        let non_unit_quaternions = poses.iter().filter(|p| is_non_unit(&p.rotation)).count()
+            + calibrated
+                .iter()
+                .filter(|c| is_non_unit(&c.rotation))
+                .count();
         Ok(Self {
             root: root.to_path_buf(),
             version,
             frames,
             options,
+            non_unit_quaternions,
         })
+    }
+
+    /// Rotations in `ego_pose` and `calibrated_sensor` that were not unit quaternions and were
+    /// normalised.
+    pub fn non_unit_quaternions(&self) -> usize {
+        self.non_unit_quaternions
     }
 
     pub fn version(&self) -> &str {
