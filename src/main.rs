@@ -115,10 +115,31 @@ fn main() -> ExitCode {
     match dispatch(cli.command) {
         Ok(code) => code,
         Err(error) => {
-            eprintln!("error: {error:#}");
+            eprintln!("error: {}", describe_chain(&error));
             ExitCode::from(1)
         }
     }
+}
+
+/// An error and its causes, joined by ": ", each said once. Libraries put their cause in
+/// their own message (a path, an OS error) and also return it as the source; printed as a
+/// chain, it would read twice ("not found (os error 2): not found (os error 2)").
+fn describe_chain(error: &anyhow::Error) -> String {
+    let mut text = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if text.contains(&cause) {
+            continue;
+        }
+        // "opening DIR" then "DIR: no such folder": the cause names the path once more.
+        let cause = match cause.split_once(": ") {
+            Some((head, rest)) if head.contains(['/', '.']) && text.contains(head) => rest,
+            _ => &cause,
+        };
+        text.push_str(": ");
+        text.push_str(cause);
+    }
+    text
 }
 
 fn init_tracing() {

@@ -434,6 +434,69 @@ fn the_source_counts_dropped_points_and_normalised_rotations_in_the_metrics() {
 }
 
 #[test]
+fn errors_say_each_cause_once_and_in_our_words() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nope.ply");
+    let other = dir.path().join("other.ply");
+    let chamfer = bevworld(&[
+        "eval",
+        "chamfer",
+        "--pred",
+        missing.to_str().unwrap(),
+        "--gt",
+        other.to_str().unwrap(),
+    ]);
+    assert_eq!(chamfer.status.code(), Some(1));
+    let message = text(&chamfer);
+    assert_eq!(message.matches("os error 2").count(), 1, "{message}");
+    assert!(message.contains("nope.ply"), "{message}");
+
+    let folder = dir.path().join("no-dataset");
+    let inspect = bevworld(&[
+        "inspect",
+        "--data",
+        folder.to_str().unwrap(),
+        "--out",
+        dir.path().join("inspect").to_str().unwrap(),
+    ]);
+    assert_eq!(inspect.status.code(), Some(1));
+    let message = text(&inspect);
+    assert_eq!(
+        message.matches(folder.to_str().unwrap()).count(),
+        1,
+        "{message}"
+    );
+    assert!(message.contains("does not exist"), "{message}");
+
+    // A key written twice: the place and a sentence, not the parser library's options.
+    let graph = dir.path().join("twice.yaml");
+    let yaml = std::fs::read_to_string("configs/graphs/reconstruct.yaml").unwrap();
+    std::fs::write(&graph, format!("name: first\n{yaml}")).unwrap();
+    let check = bevworld(&["check", graph.to_str().unwrap()]);
+    assert_eq!(check.status.code(), Some(2), "{}", text(&check));
+    let message = text(&check);
+    assert!(message.contains("duplicate mapping key: name"), "{message}");
+    assert!(message.contains("a key may appear once"), "{message}");
+    assert!(!message.contains("DuplicateKeyPolicy"), "{message}");
+    let config = dir.path().join("twice-train.yaml");
+    std::fs::write(&config, "steps: 3\nsteps: 4\n").unwrap();
+    let train = bevworld(&[
+        "train",
+        "tokenizer",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        dir.path().join("run").to_str().unwrap(),
+    ]);
+    assert_eq!(train.status.code(), Some(1));
+    let message = text(&train);
+    assert!(message.contains("line 2, column 1"), "{message}");
+    assert!(message.contains("twice-train.yaml"), "{message}");
+    assert!(!message.contains("DuplicateKeyPolicy"), "{message}");
+    assert_eq!(message.lines().count(), 1, "{message}");
+}
+
+#[test]
 fn bad_set_syntax_is_an_error() {
     let output = bevworld(&["check", "configs/graphs/replay.yaml", "--set", "nodot"]);
     assert_eq!(output.status.code(), Some(1));

@@ -23,6 +23,7 @@ pub mod registry;
 pub mod runtime;
 pub mod schema;
 pub mod validate;
+pub mod yaml;
 
 pub use diagnostic::{Diagnostic, Diagnostics};
 pub use error::{NodeError, RunError};

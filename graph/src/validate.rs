@@ -294,7 +294,7 @@ pub fn validate(
     let parsed: GraphFile = match serde_saphyr::from_str(text) {
         Ok(parsed) => parsed,
         Err(error) => {
-            let message = first_line(&error.to_string());
+            let message = crate::yaml::describe(&error);
             finder.at(error.location(), format!("malformed graph file: {message}"), Some(
                 "a graph has `nodes:` (each with id, kind, params) and `edges:` (each with from: node.port, to: node.port)".into(),
             ));
@@ -810,10 +810,6 @@ fn set_path(
             }
         }
     }
-}
-
-fn first_line(text: &str) -> String {
-    text.lines().next().unwrap_or(text).trim().to_string()
 }
 
 /// A cycle as a list of node indices, if the edges have one.

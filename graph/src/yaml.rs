@@ -1,0 +1,72 @@
+//! serde-saphyr's errors in our words: one line, the place as `line L, column C`, and none of
+//! the library's advice about its own options (a user cannot set them).
+
+use serde_saphyr::Location;
+
+/// What is wrong, without the place (for callers that show the place themselves).
+pub fn describe(error: &serde_saphyr::Error) -> String {
+    let text = error.to_string();
+    let mut message = text.lines().next().unwrap_or_default().trim();
+    message = message.strip_prefix("error:").unwrap_or(message).trim();
+    // "line 12 column 1: ..." leads the library's message when it knows the place.
+    if let Some(rest) = message.strip_prefix("line ")
+        && let Some((place, after)) = rest.split_once(": ")
+        && place
+            .split(" column ")
+            .all(|n| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()))
+    {
+        message = after;
+    }
+    let message = message.replace(
+        ", set DuplicateKeyPolicy in Options if acceptable",
+        " (a key may appear once in a mapping)",
+    );
+    if message.is_empty() {
+        "not valid YAML".to_string()
+    } else {
+        message
+    }
+}
+
+/// What is wrong and where: `line L, column C: message`.
+pub fn describe_at(error: &serde_saphyr::Error) -> String {
+    match error.location().filter(|l| *l != Location::UNKNOWN) {
+        Some(place) => format!(
+            "line {}, column {}: {}",
+            place.line(),
+            place.column(),
+            describe(error)
+        ),
+        None => describe(error),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn error_of(text: &str) -> serde_saphyr::Error {
+        serde_saphyr::from_str::<serde_json::Value>(text)
+            .err()
+            .expect("invalid YAML")
+    }
+
+    #[test]
+    fn a_duplicate_key_is_said_in_our_words_with_its_place() {
+        let message = describe_at(&error_of("steps: 3\nsteps: 4\n"));
+        assert_eq!(
+            message,
+            "line 2, column 1: duplicate mapping key: steps (a key may appear once in a mapping)"
+        );
+        assert!(!message.contains("DuplicateKeyPolicy"));
+    }
+
+    #[test]
+    fn a_syntax_error_is_one_line_without_the_library_snippet() {
+        let message = describe_at(&error_of("a: [1, 2\nb: 3\n"));
+        assert_eq!(message.lines().count(), 1, "{message}");
+        assert!(message.starts_with("line "), "{message}");
+        assert!(!message.contains("error:"), "{message}");
+        assert!(!message.contains("<input>"), "{message}");
+    }
+}
