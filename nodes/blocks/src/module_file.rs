@@ -113,6 +113,7 @@ pub fn load_module<M: Module>(
             path: path.to_path_buf(),
         });
     }
+    check_header(what, path)?;
     let mut store = BurnpackStore::from_file(path)
         .auto_extension(false)
         .allow_partial(true)
@@ -157,6 +158,40 @@ pub fn load_module<M: Module>(
     }
 }
 
+/// Reads a burnpack file's fixed header and checks that the metadata it announces fits in the
+/// file, before burn's reader allocates the announced size: one flipped bit in that length
+/// would otherwise ask for up to burn's 100 MiB cap for a file of a few kilobytes.
+fn check_header(what: &str, path: &Path) -> Result<(), ModuleFileError> {
+    use burn::store::burn_pack::{HEADER_SIZE, Header};
+    use std::io::Read;
+    let io = |message: String| ModuleFileError::Io {
+        what: what.into(),
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut file = std::fs::File::open(path).map_err(|e| io(format!("cannot read ({e})")))?;
+    let length = file
+        .metadata()
+        .map_err(|e| io(format!("cannot read ({e})")))?
+        .len();
+    let mut bytes = [0u8; HEADER_SIZE];
+    file.read_exact(&mut bytes).map_err(|_| {
+        io(format!(
+            "not a burnpack weights file ({length} bytes, shorter than its {HEADER_SIZE}-byte header)"
+        ))
+    })?;
+    let header =
+        Header::from_bytes(&bytes).map_err(|e| io(format!("not a burnpack weights file ({e})")))?;
+    let room = length.saturating_sub(HEADER_SIZE as u64);
+    if u64::from(header.metadata_size) > room {
+        return Err(io(format!(
+            "not a burnpack weights file: its header announces {} bytes of metadata, but only {room} follow",
+            header.metadata_size
+        )));
+    }
+    Ok(())
+}
+
 /// Checks, without loading any tensor, that `path` is a readable burnpack file holding
 /// tensors: its header and metadata only are read. What `bevworld check` can say of a weights
 /// file; whether the tensors fit a config is found when they load.
@@ -172,6 +207,7 @@ pub fn check_file(what: &str, path: &Path) -> Result<(), ModuleFileError> {
         path: path.to_path_buf(),
         message,
     };
+    check_header(what, path)?;
     let reader = burn::store::burn_pack::Reader::from_file_exact(path)
         .map_err(|e| io(format!("not a burnpack weights file ({e})")))?;
     if reader.tensor_names().is_empty() {

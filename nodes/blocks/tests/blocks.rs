@@ -6,7 +6,7 @@ use bevworld_blocks::init::{random_normal, random_tensor};
 use bevworld_blocks::swin::{SwinBlockConfig, SwinConfig};
 use bevworld_blocks::{
     AdaLnModulationConfig, ModuleFileError, MultiHeadAttentionConfig, TensorCache, causal_mask,
-    load_module, modulate, save_module, seeded_init, sinusoidal_1d, sinusoidal_2d,
+    check_file, load_module, modulate, save_module, seeded_init, sinusoidal_1d, sinusoidal_2d,
     timestep_embedding,
 };
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
@@ -271,5 +271,28 @@ fn weights_holding_a_nan_are_refused_naming_the_tensor() {
             assert!(text.contains("poisoned.bpk"), "{text}");
         }
         other => panic!("expected a non-finite refusal, got {other:?}"),
+    }
+}
+
+#[test]
+fn a_header_announcing_more_metadata_than_the_file_holds_is_refused_before_reading() {
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("bitflip.bpk");
+    let config = bevworld_blocks::MlpConfig::new(4, 8);
+    save_module(&config.init(&device()), "test", &path).expect("save");
+    let mut bytes = std::fs::read(&path).expect("read");
+    // Bytes 6..10 are the metadata length (after the magic and the version): one high bit
+    // flipped asks for 64 MiB more than the file holds.
+    bytes[9] ^= 0x04;
+    std::fs::write(&path, &bytes).expect("write");
+    for error in [
+        check_file("test", &path).expect_err("header"),
+        load_module(config.init(&device()), "test", "mlp", &path).expect_err("load"),
+    ] {
+        let text = error.to_string();
+        assert!(
+            text.contains("bitflip.bpk") && text.contains("announces"),
+            "{text}"
+        );
     }
 }
