@@ -59,6 +59,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     (
         "bevworld-world-model-train",
         &[
+            "bevworld-graph",
             "bevworld-types",
             "bevworld-blocks",
             "bevworld-training",
@@ -70,6 +71,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     (
         "bevworld-tokenizer-train",
         &[
+            "bevworld-graph",
             "bevworld-types",
             "bevworld-blocks",
             "bevworld-training",
