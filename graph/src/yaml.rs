@@ -46,9 +46,7 @@ mod tests {
     use super::*;
 
     fn error_of(text: &str) -> serde_saphyr::Error {
-        serde_saphyr::from_str::<serde_json::Value>(text)
-            .err()
-            .expect("invalid YAML")
+        serde_saphyr::from_str::<serde_json::Value>(text).expect_err("invalid YAML")
     }
 
     #[test]
