@@ -110,7 +110,30 @@ impl MultiHeadAttention {
     /// learned bias.
     // x: [B, N, C], bias: [B | 1, H | 1, N, N] -> [B, N, C]
     pub fn forward(&self, x: Tensor<3>, bias: Option<Tensor<4>>) -> Tensor<3> {
+        self.forward_after(x, None, bias).0
+    }
+
+    /// Attention of `x`'s tokens over `prefix`'s keys and values followed by their own: the
+    /// prefix holds tokens that came before and were projected once (the world model's
+    /// condition frames, the same at every sampling step). Returns the output and this call's
+    /// own keys and values, to be a later call's prefix.
+    // x: [B, N, C], prefix: 2 × [B, H, P, d], bias: [B | 1, H | 1, N, P + N]
+    //   -> [B, N, C], 2 × [B, H, N, d]
+    pub fn forward_after(
+        &self,
+        x: Tensor<3>,
+        prefix: Option<&[Tensor<4>; 2]>,
+        bias: Option<Tensor<4>>,
+    ) -> (Tensor<3>, [Tensor<4>; 2]) {
         let [q, k, v] = split_heads(&self.qkv, x, self.heads);
-        merge_heads(&self.proj, scaled_dot_product(q, k, v, bias))
+        let (keys, values) = match prefix {
+            Some([earlier_k, earlier_v]) => (
+                Tensor::cat(vec![earlier_k.clone(), k.clone()], 2),
+                Tensor::cat(vec![earlier_v.clone(), v.clone()], 2),
+            ),
+            None => (k.clone(), v.clone()),
+        };
+        let out = merge_heads(&self.proj, scaled_dot_product(q, keys, values, bias));
+        (out, [k, v])
     }
 }

@@ -50,6 +50,24 @@ impl SpatialTemporalBlock {
     /// `causal` is the additive mask over frames (`bevworld_blocks::causal_mask`).
     // x: [B, F, L, D], condition: [B, F, c], causal: [F, F] -> [B, F, L, D]
     pub fn forward(&self, x: Tensor<4>, condition: Tensor<3>, causal: Tensor<2>) -> Tensor<4> {
+        self.forward_after(x, condition, None, causal).0
+    }
+
+    /// The block over frames that follow `prefix` frames already run through it: their
+    /// temporal keys and values, `[B·L, H, P, d]` each, are attended to before the frames' own.
+    /// Condition frames never attend to later ones, so theirs are the same whatever follows
+    /// them, and a forecast computes them once for all its sampling steps. `mask` is the
+    /// additive mask of these F frames over the P + F. Returns the frames and their temporal
+    /// keys and values.
+    // x: [B, F, L, D], condition: [B, F, c], prefix: 2 × [B·L, H, P, d], mask: [F, P + F]
+    //   -> [B, F, L, D], 2 × [B·L, H, F, d]
+    pub fn forward_after(
+        &self,
+        x: Tensor<4>,
+        condition: Tensor<3>,
+        prefix: Option<&[Tensor<4>; 2]>,
+        mask: Tensor<2>,
+    ) -> (Tensor<4>, [Tensor<4>; 2]) {
         let [batch, frames, tokens, width] = x.dims();
         // Nine [B, F, 1, D] vectors, broadcast over the frame's tokens.
         let m: Vec<Tensor<4>> = self
@@ -59,7 +77,7 @@ impl SpatialTemporalBlock {
             .map(|v| v.unsqueeze_dim(2))
             .collect();
 
-        // 1. Causal temporal attention: one sequence of F frames per spatial token.
+        // 1. Causal temporal attention: one sequence of frames per spatial token.
         let h = modulate(
             layer_norm(x.clone(), NORM_EPSILON),
             m[0].clone(),
@@ -68,12 +86,10 @@ impl SpatialTemporalBlock {
         let h = h
             .swap_dims(1, 2) // [B, L, F, D]
             .reshape([batch * tokens, frames, width]);
-        let mask = causal.unsqueeze::<4>(); // [1, 1, F, F]
-        let h = self
+        let (h, keys_values) = self
             .temporal
-            .forward(h, Some(mask))
-            .reshape([batch, tokens, frames, width])
-            .swap_dims(1, 2); // [B, F, L, D]
+            .forward_after(h, prefix, Some(mask.unsqueeze::<4>())); // mask: [1, 1, F, P + F]
+        let h = h.reshape([batch, tokens, frames, width]).swap_dims(1, 2); // [B, F, L, D]
         let x = x + m[2].clone() * h;
 
         // 2. Spatial attention within each frame.
@@ -95,6 +111,6 @@ impl SpatialTemporalBlock {
             m[6].clone(),
             m[7].clone(),
         );
-        x + m[8].clone() * self.mlp.forward(h)
+        (x + m[8].clone() * self.mlp.forward(h), keys_values)
     }
 }

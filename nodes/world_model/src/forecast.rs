@@ -31,7 +31,8 @@ pub fn seeded_noise(seed: u64, shape: [usize; 5], device: &Device) -> Tensor<5> 
 }
 
 /// Samples the N future latents (standardised). Condition frames are never altered: they
-/// enter every step as given, at level 0.
+/// enter at level 0, and run through the network once per forecast (`ContextCache`), not once
+/// per step.
 // -> [B, N, C', H, W]
 pub fn forecast(
     model: &WorldModel,
@@ -39,6 +40,29 @@ pub fn forecast(
     schedule: &NoiseSchedule,
     inputs: &ForecastInputs,
     sampler: &DdimConfig,
+) -> Result<Tensor<5>, DdimError> {
+    sample(model, config, schedule, inputs, sampler, true)
+}
+
+/// The same forecast with the condition frames run again at every step, as the plain loop
+/// does: to measure what the cache saves, and to check that it changes nothing.
+pub fn forecast_recomputing_context(
+    model: &WorldModel,
+    config: &WorldModelConfig,
+    schedule: &NoiseSchedule,
+    inputs: &ForecastInputs,
+    sampler: &DdimConfig,
+) -> Result<Tensor<5>, DdimError> {
+    sample(model, config, schedule, inputs, sampler, false)
+}
+
+fn sample(
+    model: &WorldModel,
+    config: &WorldModelConfig,
+    schedule: &NoiseSchedule,
+    inputs: &ForecastInputs,
+    sampler: &DdimConfig,
+    cache_context: bool,
 ) -> Result<Tensor<5>, DdimError> {
     sampler.check(schedule)?;
     let [batch, context, channels, height, width] = inputs.context.dims();
@@ -48,14 +72,32 @@ pub fn forecast(
     let mut x = seeded_noise(sampler.seed, shape, &device);
     let target = config.diffusion.target;
     let plan = timesteps(schedule.steps(), sampler.steps, sampler.spacing);
+    let cache = cache_context.then(|| {
+        model.context(
+            inputs.context.clone(),
+            inputs.actions.clone().narrow(1, 0, context),
+        )
+    });
+    let future_actions = inputs.actions.clone().narrow(1, context, future);
     for (index, &(level, previous)) in plan.iter().enumerate() {
-        let levels: Vec<f32> = (0..batch)
-            .flat_map(|_| {
-                std::iter::repeat_n(0.0, context).chain(std::iter::repeat_n(level as f32, future))
-            })
-            .collect();
-        let frames = Tensor::cat(vec![inputs.context.clone(), x.clone()], 1);
-        let output = model.forward(frames, inputs.actions.clone(), &levels, future);
+        let output = match &cache {
+            Some(cache) => model.forward_future(
+                cache,
+                x.clone(),
+                future_actions.clone(),
+                &vec![level as f32; batch * future],
+            ),
+            None => {
+                let levels: Vec<f32> = (0..batch)
+                    .flat_map(|_| {
+                        std::iter::repeat_n(0.0, context)
+                            .chain(std::iter::repeat_n(level as f32, future))
+                    })
+                    .collect();
+                let frames = Tensor::cat(vec![inputs.context.clone(), x.clone()], 1);
+                model.forward(frames, inputs.actions.clone(), &levels, future)
+            }
+        };
         let (clean, noise) = clean_and_noise(schedule, target, x, output, level);
         let fresh = (sampler.eta > 0.0 && previous > 0)
             .then(|| seeded_noise(sampler.seed.wrapping_add(1 + index as u64), shape, &device));

@@ -75,7 +75,41 @@ impl WorldModelConfig {
     }
 }
 
+/// The condition frames' keys and values in every block's temporal attention. Attention over
+/// frames is causal and the condition frames are clean (level 0), so these are the same at
+/// every sampling step: a forecast computes them once (`WorldModel::context`) and each step
+/// runs the future frames alone (`WorldModel::forward_future`).
+pub struct ContextCache {
+    /// Per block: keys and values, `[B·L, H, P+1, d]` each.
+    keys_values: Vec<[Tensor<4>; 2]>,
+    frames: usize,
+}
+
+impl ContextCache {
+    /// The number of condition frames it holds.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+}
+
 impl WorldModel {
+    /// Patch tokens of frames `first..first + F` of a sequence, with their 2D and 1D positions.
+    // latents: [B, F, C', H, W] -> [B, F, L, D]
+    fn embed(&self, latents: Tensor<5>, first: usize) -> Tensor<4> {
+        let [_, frames, _, _, _] = latents.dims();
+        let device = latents.device();
+        let [rows, columns] = [self.size[0] / self.patch, self.size[1] / self.patch];
+        let tokens = rows * columns;
+        let width = self.width;
+        let space = self.space.get_or_build(self.patch, &device, || {
+            sinusoidal_2d(rows, columns, width, &device)
+        }); // [L, D]
+        let time = sinusoidal_1d(first + frames, width, &device).narrow(0, first, frames); // [F, D]
+        self.patch_embed.forward(patchify(latents, self.patch)) // [B, F, L, D]
+            + space.reshape([1, 1, tokens, width])
+            + time.reshape([1, frames, 1, width])
+    }
+
     /// Embeds every frame's tokens and runs the blocks, returning the tokens of all frames.
     /// `levels` holds each frame's noise level, row-major `[B, F]` (0: a clean condition
     /// frame).
@@ -87,23 +121,57 @@ impl WorldModel {
         levels: &[f32],
     ) -> (Tensor<4>, Tensor<3>) {
         let [_, frames, _, _, _] = latents.dims();
-        let device = latents.device();
-        let [rows, columns] = [self.size[0] / self.patch, self.size[1] / self.patch];
-        let tokens = rows * columns;
-        let width = self.width;
-        let space = self.space.get_or_build(self.patch, &device, || {
-            sinusoidal_2d(rows, columns, width, &device)
-        }); // [L, D]
-        let time = sinusoidal_1d(frames, width, &device); // [F, D]
-        let x = self.patch_embed.forward(patchify(latents, self.patch)) // [B, F, L, D]
-            + space.reshape([1, 1, tokens, width])
-            + time.reshape([1, frames, 1, width]);
+        let causal = causal_mask(frames, &latents.device());
+        let x = self.embed(latents, 0);
         let condition = self.condition.forward(actions, levels);
-        let causal = causal_mask(frames, &device);
         let x = self.blocks.iter().fold(x, |x, block| {
             block.forward(x, condition.clone(), causal.clone())
         });
         (x, condition)
+    }
+
+    /// Runs the clean condition frames (level 0) through the blocks once and keeps what the
+    /// future frames attend to.
+    // context: [B, P+1, C', H, W], actions: [B, P+1, 5]
+    pub fn context(&self, context: Tensor<5>, actions: Tensor<3>) -> ContextCache {
+        let [batch, frames, _, _, _] = context.dims();
+        let causal = causal_mask(frames, &context.device());
+        let condition = self.condition.forward(actions, &vec![0.0; batch * frames]);
+        let mut x = self.embed(context, 0);
+        let mut keys_values = Vec::with_capacity(self.blocks.len());
+        for block in &self.blocks {
+            let (next, kv) = block.forward_after(x, condition.clone(), None, causal.clone());
+            x = next;
+            keys_values.push(kv);
+        }
+        ContextCache {
+            keys_values,
+            frames,
+        }
+    }
+
+    /// The prediction for N future frames that follow the condition frames of `cache`: the
+    /// same as `forward` on the whole sequence, without running the condition frames again.
+    // future: [B, N, C', H, W], actions: [B, N, 5], levels: B·N -> [B, N, C', H, W]
+    pub fn forward_future(
+        &self,
+        cache: &ContextCache,
+        future: Tensor<5>,
+        actions: Tensor<3>,
+        levels: &[f32],
+    ) -> Tensor<5> {
+        let [_, frames, _, _, _] = future.dims();
+        let all = cache.frames + frames;
+        // The rows of the future frames in the causal mask of the whole sequence.
+        let mask = causal_mask(all, &future.device()).narrow(0, cache.frames, frames); // [N, P+1+N]
+        let condition = self.condition.forward(actions, levels);
+        let mut x = self.embed(future, cache.frames);
+        for (block, prefix) in self.blocks.iter().zip(&cache.keys_values) {
+            x = block
+                .forward_after(x, condition.clone(), Some(prefix), mask.clone())
+                .0;
+        }
+        self.head(x, condition)
     }
 
     /// The prediction for the last `future` frames.

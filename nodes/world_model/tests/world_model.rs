@@ -9,7 +9,8 @@ use bevworld_blocks::{causal_mask, seeded_init};
 use bevworld_world_model::weights::meta_path_for;
 use bevworld_world_model::{
     ActionStats, DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WeightsMeta, WorldModel,
-    WorldModelConfig, WorldModelWeightsError, forecast, load_weights, save_weights,
+    WorldModelConfig, WorldModelWeightsError, forecast, forecast_recomputing_context, load_weights,
+    save_weights,
 };
 use burn::prelude::*;
 
@@ -275,6 +276,7 @@ fn meta(c: &WorldModelConfig) -> WeightsMeta {
             mean: [8.0, 0.0, 4.0, 0.0, 0.0],
             std: [2.0, 0.2, 1.0, 0.1, 0.1],
             count: 10,
+            range: None,
         },
         steps: 1,
         command: "test".into(),
@@ -332,4 +334,59 @@ fn weights_load_only_with_their_config_and_their_tokenizer() {
         .err()
         .expect("no meta");
     assert!(error.to_string().contains("wm.meta.json"), "{error}");
+}
+
+#[test]
+fn the_context_cache_changes_no_prediction_and_no_forecast() {
+    let c = small();
+    let model = trained_like(&c, 12);
+    let (latents, actions) = inputs(&c, 2, 30);
+    let (p, n) = (c.context_frames, c.future_frames);
+    let level = 400.0;
+    let whole = model.forward(latents.clone(), actions.clone(), &levels(&c, 2, level), n);
+    let cache = model.context(
+        latents.clone().narrow(1, 0, p),
+        actions.clone().narrow(1, 0, p),
+    );
+    assert_eq!(cache.frames(), p);
+    let cached = model.forward_future(
+        &cache,
+        latents.narrow(1, p, n),
+        actions.narrow(1, p, n),
+        &vec![level; 2 * n],
+    );
+    let gap = values((whole.clone() - cached).abs())
+        .into_iter()
+        .fold(0.0, f32::max);
+    let scale = values(whole.abs()).into_iter().fold(0.0, f32::max);
+    assert!(scale > 1e-2, "the prediction carries signal ({scale})");
+    assert!(
+        gap <= 1e-5 * scale.max(1.0),
+        "cached and whole differ by {gap}"
+    );
+
+    let schedule = NoiseSchedule::new(&c.diffusion);
+    let inputs = forecast_inputs(&c, 40);
+    for steps in [1, 3, 8] {
+        let sampler = DdimConfig {
+            steps,
+            eta: 0.0,
+            spacing: Spacing::Trailing,
+            seed: 5,
+        };
+        let a = values(forecast(&model, &c, &schedule, &inputs, &sampler).expect("cached"));
+        let b = values(
+            forecast_recomputing_context(&model, &c, &schedule, &inputs, &sampler)
+                .expect("recomputed"),
+        );
+        let gap = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        assert!(
+            gap <= 1e-4,
+            "{steps} steps: cached and recomputed differ by {gap}"
+        );
+    }
 }
