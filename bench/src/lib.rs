@@ -35,14 +35,8 @@ pub fn machine() -> String {
     format!("{cores} cores, {model}")
 }
 
-/// Percentile of a sorted slice (nearest rank).
-pub fn percentile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let rank = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
-    sorted[rank - 1]
-}
+/// Nearest-rank percentile, the one the forecast metrics report.
+pub use bevworld_metrics::forecast_node::percentile;
 
 /// PSNR in dB of two images with values in [0, 1]; infinite when they are equal.
 pub fn psnr(a: &[f32], b: &[f32]) -> f64 {

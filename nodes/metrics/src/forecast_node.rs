@@ -105,6 +105,8 @@ pub struct ForecastMetrics {
     latents: BTreeMap<(String, i64), LatentGroup>,
     contexts: std::collections::BTreeSet<String>,
     sampling_ms: Sum,
+    /// Per context: its forecast's sampling time and the render time of its model views.
+    latency_ms: BTreeMap<String, (f64, f64)>,
     without_truth: u64,
     empty_clouds: u64,
 }
@@ -185,14 +187,35 @@ impl ForecastMetrics {
                 row.into()
             })
             .collect();
+        let rollout: Vec<f64> = self.latency_ms.values().map(|(s, _)| *s).collect();
+        let rendered: Vec<f64> = self.latency_ms.values().map(|(s, r)| s + r).collect();
         serde_json::json!({
             "contexts": self.contexts.len(),
             "ms_per_forecast": self.sampling_ms.mean(),
+            // Per forecast: the rollout alone, and the rollout with the render of the model's
+            // views at the requested horizons.
+            "latency_ms": {
+                "rollout_p50": percentile(&rollout, 0.50),
+                "rollout_p99": percentile(&rollout, 0.99),
+                "with_render_p50": percentile(&rendered, 0.50),
+                "with_render_p99": percentile(&rendered, 0.99),
+            },
             "views_without_truth": self.without_truth,
             "empty_clouds": self.empty_clouds,
             "horizons": horizons,
         })
     }
+}
+
+/// The nearest-rank percentile `q` of `values` (NaN when there are none).
+pub fn percentile(values: &[f64], q: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let rank = (q * sorted.len() as f64).ceil().max(1.0) as usize;
+    sorted[rank.min(sorted.len()) - 1]
 }
 
 /// The methods of a forecast table, in the order they are shown.
@@ -246,6 +269,11 @@ impl Sink for ForecastMetrics {
         if view.method == ForecastMethod::Model {
             self.contexts.insert(view.context.frame_token.clone());
             self.sampling_ms.add(view.sampling_ms);
+            let latency = self
+                .latency_ms
+                .entry(view.context.frame_token.clone())
+                .or_insert((view.sampling_ms, 0.0));
+            latency.1 += rendered.render_ms;
             // The raw-point baselines, once per (context, horizon), in the truth's ego frame.
             let gt = points_moved(&truth, &bevworld_types::Pose::IDENTITY);
             let copy_last = points_moved(&view.context, &bevworld_types::Pose::IDENTITY);
@@ -386,6 +414,7 @@ fn build(params: &ForecastMetricsParams) -> Result<ForecastMetrics, ParamError> 
         latents: BTreeMap::new(),
         contexts: Default::default(),
         sampling_ms: Sum::default(),
+        latency_ms: BTreeMap::new(),
         without_truth: 0,
         empty_clouds: 0,
     })
@@ -401,4 +430,19 @@ pub fn register(registry: &mut Registry) {
         |params: &ForecastMetricsParams| build(params).map(|_| ()),
         |params: ForecastMetricsParams| Ok(Node::Sink(Box::new(build(&params)?))),
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::percentile;
+
+    #[test]
+    fn percentiles_are_nearest_rank() {
+        let values: Vec<f64> = (1..=100).rev().map(f64::from).collect();
+        assert_eq!(percentile(&values, 0.50), 50.0);
+        assert_eq!(percentile(&values, 0.99), 99.0);
+        assert_eq!(percentile(&values, 1.0), 100.0);
+        assert_eq!(percentile(&[7.0], 0.99), 7.0);
+        assert!(percentile(&[], 0.5).is_nan());
+    }
 }

@@ -144,6 +144,8 @@ pub struct RenderedFuture {
     pub images: Option<ImageSet>,
     /// In the LiDAR frame of `view.rays`.
     pub lidar: Option<PointCloud>,
+    /// Milliseconds the render of this view took (images and sweep).
+    pub render_ms: f64,
 }
 
 /// The rig of `frame` moved to `global_from_ego` at `time_of_validity_us`: its cameras (with

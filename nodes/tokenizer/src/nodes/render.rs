@@ -287,12 +287,14 @@ impl RenderNode {
                 )));
             }
         }
+        let started = std::time::Instant::now();
         let (camera, lidar, rays) =
             self.render(&view.latent, &view.rays, want_images, want_lidar)?;
         let images = camera
             .map(|camera| self.images(&view.rays, &camera, &rays))
             .transpose()?;
         let lidar = lidar.map(|lidar| rendered_sweep(&view.rays, &lidar, &rays));
+        let render_ms = started.elapsed().as_secs_f64() * 1e3;
         if let Some(images) = &images
             && out.is_connected("images")
         {
@@ -309,6 +311,7 @@ impl RenderNode {
                 view,
                 images,
                 lidar,
+                render_ms,
             },
         )
     }
