@@ -15,7 +15,27 @@ pub struct ActionStats {
     pub std: [f64; ACTION_FEATURES],
     /// Actions the statistics were computed over.
     pub count: usize,
+    /// The smallest and largest value of each feature in the training set: what the model has
+    /// seen. Absent in statistics written before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range: Option<ActionRange>,
 }
+
+/// Per-feature minimum and maximum.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActionRange {
+    pub min: [f64; ACTION_FEATURES],
+    pub max: [f64; ACTION_FEATURES],
+}
+
+/// How far past the training range, in standard deviations of the feature, an action may go
+/// before it counts as outside: a forecast a little faster than any in training is still the
+/// model's to make.
+pub const RANGE_MARGIN_STD: f64 = 0.25;
+
+/// Without a recorded range: how many standard deviations from the mean count as outside.
+pub const OUTSIDE_STD: f64 = 4.0;
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ActionStatsError {
@@ -36,6 +56,8 @@ impl ActionStats {
     ) -> Result<Self, ActionStatsError> {
         let mut sum = [0.0f64; ACTION_FEATURES];
         let mut squares = [0.0f64; ACTION_FEATURES];
+        let mut min = [f64::INFINITY; ACTION_FEATURES];
+        let mut max = [f64::NEG_INFINITY; ACTION_FEATURES];
         let mut count = 0usize;
         for (index, action) in actions.into_iter().enumerate() {
             let features = action.as_features();
@@ -43,8 +65,11 @@ impl ActionStats {
                 return Err(ActionStatsError::NonFinite { index, features });
             }
             for (k, f) in features.iter().enumerate() {
-                sum[k] += f64::from(*f);
-                squares[k] += f64::from(*f) * f64::from(*f);
+                let f = f64::from(*f);
+                sum[k] += f;
+                squares[k] += f * f;
+                min[k] = min[k].min(f);
+                max[k] = max[k].max(f);
             }
             count += 1;
         }
@@ -60,7 +85,30 @@ impl ActionStats {
                 std[k] = variance.sqrt();
             }
         }
-        Ok(Self { mean, std, count })
+        Ok(Self {
+            mean,
+            std,
+            count,
+            range: Some(ActionRange { min, max }),
+        })
+    }
+
+    /// Whether `action` lies outside what training saw: past the training range in any feature
+    /// by more than `RANGE_MARGIN_STD` of its spread, or, for statistics without a recorded
+    /// range, more than `OUTSIDE_STD` standard deviations from the mean. The model still
+    /// forecasts it (finite, from the same network), but its output is an extrapolation.
+    pub fn outside_training(&self, action: &EgoAction) -> bool {
+        let features = action.as_features();
+        (0..ACTION_FEATURES).any(|k| {
+            let value = f64::from(features[k]);
+            match &self.range {
+                Some(range) => {
+                    let margin = RANGE_MARGIN_STD * self.std[k];
+                    !(value >= range.min[k] - margin && value <= range.max[k] + margin)
+                }
+                None => !((value - self.mean[k]).abs() <= OUTSIDE_STD * self.std[k]),
+            }
+        })
     }
 
     /// `(features − mean) / std`.
@@ -97,6 +145,32 @@ mod tests {
         let n = stats.normalise(&actions[0]);
         assert!((f64::from(n[0]) + 2.0 / (8.0f64 / 3.0).sqrt()).abs() < 1e-5);
         assert_eq!(n[3], 0.0);
+    }
+
+    #[test]
+    fn actions_past_the_training_range_are_outside() {
+        let actions = [action(8.0, 0.2), action(10.0, -0.2), action(12.0, 0.0)];
+        let stats = ActionStats::compute(&actions).unwrap();
+        let range = stats.range.clone().unwrap();
+        assert_eq!((range.min[0], range.max[0]), (8.0, 12.0));
+        assert!(!stats.outside_training(&action(10.0, 0.1)));
+        // Speed spread √(8/3) ≈ 1.63 m/s: a margin of 0.41 m/s past 12.
+        assert!(!stats.outside_training(&action(12.3, 0.0)));
+        assert!(stats.outside_training(&action(12.5, 0.0)));
+        assert!(stats.outside_training(&action(0.0, 0.0)), "standing still");
+        assert!(stats.outside_training(&action(-3.0, 0.0)), "reversing");
+        assert!(stats.outside_training(&action(10.0, 1.0)), "1 rad/s");
+        assert!(
+            stats.outside_training(&action(f64::NAN, 0.0)),
+            "NaN is never inside"
+        );
+        // Without a recorded range: four standard deviations.
+        let old = ActionStats {
+            range: None,
+            ..stats
+        };
+        assert!(!old.outside_training(&action(12.5, 0.0)));
+        assert!(old.outside_training(&action(30.0, 0.0)));
     }
 
     #[test]

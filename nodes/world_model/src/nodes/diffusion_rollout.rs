@@ -269,6 +269,8 @@ pub struct DiffusionRolloutNode {
     baselines: bool,
     forecasts: u64,
     sampling_ms: f64,
+    /// Forecasts conditioned on an action outside the training range (`outside_training`).
+    outside_training: u64,
 }
 
 /// `global_from_future = global_from_current · current_from_future`, on the ground plane.
@@ -369,6 +371,19 @@ impl Task for DiffusionRolloutNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
         let window = inputs.get::<LatentWindow>("window")?;
         let forecast = self.forecast(window).map_err(NodeError::item)?;
+        if forecast
+            .future_actions
+            .iter()
+            .any(|action| self.action_stats.outside_training(action))
+        {
+            if self.outside_training == 0 {
+                tracing::warn!(
+                    frame = %forecast.context.frame_token,
+                    "a forecast is conditioned on actions outside the training range: an extrapolation (counted as `forecasts_outside_training`)"
+                );
+            }
+            self.outside_training += 1;
+        }
         self.forecasts += 1;
         self.sampling_ms += forecast.sampling_ms;
         out.send("forecast", forecast)
@@ -377,6 +392,10 @@ impl Task for DiffusionRolloutNode {
     fn report(&self) -> Figures {
         let mut figures = Figures::new();
         figures.insert("forecasts".into(), self.forecasts as f64);
+        figures.insert(
+            "forecasts_outside_training".into(),
+            self.outside_training as f64,
+        );
         if self.forecasts > 0 {
             figures.insert(
                 "sampling_ms_mean".into(),
@@ -410,6 +429,7 @@ pub fn build(params: &DiffusionRolloutParams) -> Result<DiffusionRolloutNode, Pa
         baselines: params.baselines,
         plan,
         forecasts: 0,
+        outside_training: 0,
         sampling_ms: 0.0,
     })
 }
