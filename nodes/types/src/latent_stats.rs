@@ -54,6 +54,11 @@ pub enum LatentStatsError {
     NonFinite,
     #[error("no latents were added")]
     Empty,
+    #[error(
+        "latent channel {channel} never varies (every value {value}): it cannot be standardised, \
+         and a world model would divide by a zero deviation; the latents are degenerate"
+    )]
+    ZeroVariance { channel: usize, value: f64 },
 }
 
 /// Running per-channel count, mean and sum of squared deviations.
@@ -109,14 +114,21 @@ impl LatentStatsAccumulator {
         if self.frames == 0 {
             return Err(LatentStatsError::Empty);
         }
+        let std: Vec<f64> = self
+            .m2
+            .iter()
+            .zip(&self.count)
+            .map(|(m2, n)| (m2 / n).sqrt())
+            .collect();
+        if let Some(channel) = std.iter().position(|s| !(*s > 0.0)) {
+            return Err(LatentStatsError::ZeroVariance {
+                channel,
+                value: self.mean[channel],
+            });
+        }
         Ok(LatentStats {
             mean: self.mean.clone(),
-            std: self
-                .m2
-                .iter()
-                .zip(&self.count)
-                .map(|(m2, n)| (m2 / n).sqrt())
-                .collect(),
+            std,
             frames: self.frames,
         })
     }
