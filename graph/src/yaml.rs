@@ -28,15 +28,28 @@ pub fn describe(error: &serde_saphyr::Error) -> String {
     }
 }
 
-/// What is wrong and where: `line L, column C: message`.
-pub fn describe_at(error: &serde_saphyr::Error) -> String {
+/// What is wrong and where: `line L, column C: message (in `the line`)`, the line read from
+/// `source`, the text that was parsed: the message alone often does not name the key.
+pub fn describe_at(error: &serde_saphyr::Error, source: &str) -> String {
     match error.location().filter(|l| *l != Location::UNKNOWN) {
-        Some(place) => format!(
-            "line {}, column {}: {}",
-            place.line(),
-            place.column(),
-            describe(error)
-        ),
+        Some(place) => {
+            let line = source
+                .lines()
+                .nth(place.line().saturating_sub(1) as usize)
+                .map(str::trim)
+                .filter(|l| !l.is_empty())
+                .map(|l| {
+                    let shown: String = l.chars().take(80).collect();
+                    format!(" (in `{shown}`)")
+                })
+                .unwrap_or_default();
+            format!(
+                "line {}, column {}: {}{line}",
+                place.line(),
+                place.column(),
+                describe(error)
+            )
+        }
         None => describe(error),
     }
 }
@@ -51,17 +64,34 @@ mod tests {
 
     #[test]
     fn a_duplicate_key_is_said_in_our_words_with_its_place() {
-        let message = describe_at(&error_of("steps: 3\nsteps: 4\n"));
+        let text = "steps: 3\nsteps: 4\n";
+        let message = describe_at(&error_of(text), text);
         assert_eq!(
             message,
-            "line 2, column 1: duplicate mapping key: steps (a key may appear once in a mapping)"
+            "line 2, column 1: duplicate mapping key: steps (a key may appear once in a mapping) (in `steps: 4`)"
         );
         assert!(!message.contains("DuplicateKeyPolicy"));
     }
 
     #[test]
+    fn a_value_of_the_wrong_type_shows_its_line() {
+        #[derive(Debug, serde::Deserialize)]
+        #[allow(dead_code)]
+        struct Config {
+            model: String,
+            steps: usize,
+        }
+        let text = "model: tiny\nsteps: ten\n";
+        let error = serde_saphyr::from_str::<Config>(text).expect_err("a string for a count");
+        let message = describe_at(&error, text);
+        assert!(message.starts_with("line 2,"), "{message}");
+        assert!(message.contains("`steps: ten`"), "{message}");
+    }
+
+    #[test]
     fn a_syntax_error_is_one_line_without_the_library_snippet() {
-        let message = describe_at(&error_of("a: [1, 2\nb: 3\n"));
+        let text = "a: [1, 2\nb: 3\n";
+        let message = describe_at(&error_of(text), text);
         assert_eq!(message.lines().count(), 1, "{message}");
         assert!(message.starts_with("line "), "{message}");
         assert!(!message.contains("error:"), "{message}");

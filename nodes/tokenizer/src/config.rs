@@ -121,11 +121,11 @@ impl TokenizerConfig {
             message,
         };
         let config: Self = serde_saphyr::from_str(text)
-            .map_err(|e| read_error(bevworld_graph::yaml::describe_at(&e)))?;
+            .map_err(|e| read_error(bevworld_graph::yaml::describe_at(&e, text)))?;
         // burn's `Config` derive cannot deny unknown fields: compare the keys as written with
         // the config read back, so that a misspelt key is an error, not a silent default.
         let given: serde_json::Value = serde_saphyr::from_str(text)
-            .map_err(|e| read_error(bevworld_graph::yaml::describe_at(&e)))?;
+            .map_err(|e| read_error(bevworld_graph::yaml::describe_at(&e, text)))?;
         let known = serde_json::to_value(&config).map_err(|e| read_error(e.to_string()))?;
         let mut problems = bevworld_types::problem::unknown_keys(&given, &known);
         problems.extend(config.problems());

@@ -138,7 +138,7 @@ impl TrainConfig {
         })?;
         let mut config: Self = serde_saphyr::from_str(&text).map_err(|e| ConfigError::Read {
             path: shown.clone(),
-            message: bevworld_graph::yaml::describe_at(&e),
+            message: bevworld_graph::yaml::describe_at(&e, &text),
         })?;
         let problems = config.problems();
         if !problems.is_empty() {

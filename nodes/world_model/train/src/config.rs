@@ -111,7 +111,7 @@ impl TrainWorldModelConfig {
     pub fn from_yaml(text: &str, origin: &str) -> Result<Self, ConfigError> {
         let config: Self = serde_saphyr::from_str(text).map_err(|e| ConfigError::Read {
             path: origin.to_string(),
-            message: bevworld_graph::yaml::describe_at(&e),
+            message: bevworld_graph::yaml::describe_at(&e, text),
         })?;
         let problems = config.problems();
         if problems.is_empty() {
