@@ -31,10 +31,22 @@ pub fn seeded_noise(seed: u64, shape: [usize; 5], device: &Device) -> Tensor<5> 
 }
 
 /// Samples the N future latents (standardised). Condition frames are never altered: they
-/// enter at level 0, and run through the network once per forecast (`ContextCache`), not once
-/// per step.
+/// enter at level 0. With more than one step they run through the network once per forecast
+/// (`ContextCache`), not once per step; with one step there is nothing to reuse, and the one
+/// pass over all frames is the faster (measured: bench/results/speed-vs-error.md).
 // -> [B, N, C', H, W]
 pub fn forecast(
+    model: &WorldModel,
+    config: &WorldModelConfig,
+    schedule: &NoiseSchedule,
+    inputs: &ForecastInputs,
+    sampler: &DdimConfig,
+) -> Result<Tensor<5>, DdimError> {
+    sample(model, config, schedule, inputs, sampler, sampler.steps > 1)
+}
+
+/// The forecast with the condition frames cached, whatever the step count.
+pub fn forecast_caching_context(
     model: &WorldModel,
     config: &WorldModelConfig,
     schedule: &NoiseSchedule,
@@ -44,8 +56,8 @@ pub fn forecast(
     sample(model, config, schedule, inputs, sampler, true)
 }
 
-/// The same forecast with the condition frames run again at every step, as the plain loop
-/// does: to measure what the cache saves, and to check that it changes nothing.
+/// The forecast with the condition frames run again at every step, as the plain loop does:
+/// to measure what the cache saves, and to check that it changes nothing.
 pub fn forecast_recomputing_context(
     model: &WorldModel,
     config: &WorldModelConfig,

@@ -30,7 +30,9 @@ pub use actions::{ACTION_FEATURES, ActionStats};
 pub use config::{DiffusionConfig, ScheduleKind, Target, WorldModelConfig};
 pub use ddim::{DdimConfig, Spacing};
 pub use ego_warp::{LatentGrid, PlanarMotion, warp_latent};
-pub use forecast::{ForecastInputs, forecast, forecast_recomputing_context};
+pub use forecast::{
+    ForecastInputs, forecast, forecast_caching_context, forecast_recomputing_context,
+};
 pub use manoeuvre::Manoeuvre;
 pub use model::{ContextCache, WorldModel};
 pub use nodes::register;

@@ -278,7 +278,7 @@ fn flex_and_wgpu_agree_on_the_world_model() {
         values(model.forward(latents, actions, &levels, c.future_frames))
     };
     let cpu = run(&Device::flex());
-    let gpu = run(&Device::wgpu(burn::prelude::DeviceKind::DefaultDevice));
+    let gpu = run(&Device::wgpu(DeviceKind::DefaultDevice));
     let worst = cpu
         .iter()
         .zip(&gpu)

@@ -9,8 +9,8 @@ use bevworld_blocks::{causal_mask, seeded_init};
 use bevworld_world_model::weights::meta_path_for;
 use bevworld_world_model::{
     ActionStats, DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WeightsMeta, WorldModel,
-    WorldModelConfig, WorldModelWeightsError, forecast, forecast_recomputing_context, load_weights,
-    save_weights,
+    WorldModelConfig, WorldModelWeightsError, forecast, forecast_caching_context,
+    forecast_recomputing_context, load_weights, save_weights,
 };
 use burn::prelude::*;
 
@@ -374,7 +374,9 @@ fn the_context_cache_changes_no_prediction_and_no_forecast() {
             spacing: Spacing::Trailing,
             seed: 5,
         };
-        let a = values(forecast(&model, &c, &schedule, &inputs, &sampler).expect("cached"));
+        let a = values(
+            forecast_caching_context(&model, &c, &schedule, &inputs, &sampler).expect("cached"),
+        );
         let b = values(
             forecast_recomputing_context(&model, &c, &schedule, &inputs, &sampler)
                 .expect("recomputed"),
