@@ -162,7 +162,19 @@ pub fn latest(run: &Path) -> Result<(CheckpointFiles, CheckpointState), Checkpoi
 pub fn verify(files: &CheckpointFiles) -> Result<CheckpointState, CheckpointError> {
     let state_path = files.state();
     let text = std::fs::read_to_string(&state_path).map_err(|e| io_error(&state_path, e))?;
-    let on_disk: StateFile = serde_json::from_str(&text).map_err(|e| io_error(&state_path, e))?;
+    let on_disk: StateFile = serde_json::from_str(&text).map_err(|e| {
+        // A checkpoint from before digests were recorded: say so, not only the missing field.
+        let legacy = serde_json::from_str::<serde_json::Value>(&text)
+            .is_ok_and(|v| v.get("step").is_some() && v.get("files").is_none());
+        if legacy {
+            io_error(
+                &state_path,
+                "was written before checkpoints recorded their files' digests, so its files cannot be checked; start the run again in a new folder",
+            )
+        } else {
+            io_error(&state_path, e)
+        }
+    })?;
     let folder = files
         .dir
         .file_name()

@@ -292,6 +292,12 @@ fn a_checkpoint_is_refused_when_its_step_or_files_were_changed() {
     assert!(message.contains("stray.bpk"), "{message}");
     std::fs::remove_file(folder.join("stray.bpk")).expect("remove");
 
+    // A state.json of the format before digests: refused, saying why.
+    std::fs::write(&state_path, r#"{"step": 5, "rng_state": 42}"#).expect("legacy");
+    let message = refusal("a checkpoint without digests");
+    assert!(message.contains("before checkpoints recorded"), "{message}");
+    std::fs::write(&state_path, &original).expect("restore");
+
     // The pointer must name a checkpoint folder, not a path out of the run.
     std::fs::write(
         checkpoint::checkpoints_dir(run).join("latest"),
