@@ -11,13 +11,12 @@ mod common;
 
 use std::path::Path;
 
-use common::{bevworld_owned, repo, text};
+use common::{bevworld_owned, node, read_json, repo, text};
 
 use bevworld_sinks::npy::read_npy_f32;
-use bevworld_types::{EgoAction, LatentStatsFile, stats_path_for};
+use bevworld_types::manoeuvre::constant_turn;
 use bevworld_world_model::manoeuvre::Manoeuvre;
-use bevworld_world_model::rollout::Rollout;
-use bevworld_world_model::{DdimConfig, Spacing, WorldModelConfig, load_weights};
+use bevworld_world_model::{DdimConfig, LoadedWorldModel, Spacing};
 use burn::prelude::*;
 
 fn path(p: &Path) -> String {
@@ -67,10 +66,8 @@ fn a_twenty_second_rollout_stays_finite_and_at_the_training_latents_scale() {
     let mut frames: Vec<&serde_json::Value> =
         index["frames"].as_array().expect("frames").iter().collect();
     frames.sort_by_key(|f| f["timestamp_us"].as_i64());
-    let root = repo();
-    let config =
-        WorldModelConfig::from_yaml_file(&root.join("configs/models/world-model-tiny.yaml"))
-            .expect("config");
+    let loaded = LoadedWorldModel::shipped_tiny(&repo(), Device::flex()).expect("weights");
+    let config = &loaded.config;
     let p = config.context_frames;
     let mut context: Vec<Vec<f32>> = frames[frames.len() - p..]
         .iter()
@@ -81,33 +78,11 @@ fn a_twenty_second_rollout_stays_finite_and_at_the_training_latents_scale() {
                 .1
         })
         .collect();
-    let tokenizer_weights = root.join("nodes/tokenizer/weights/tokenizer-tiny.bpk");
-    let stats = LatentStatsFile::load(&stats_path_for(&tokenizer_weights)).expect("stats");
-    let device = Device::flex();
-    let weights = load_weights(
-        &config,
-        &root.join("nodes/world_model/weights/world-model-tiny.bpk"),
-        Some((&stats.model, &stats.weights_hash)),
-        &device,
-    )
-    .expect("weights");
-    let rollout = Rollout {
-        model: &weights.model,
-        config: &config,
-        action_stats: &weights.meta.action_stats,
-        latent_stats: &stats.stats,
-        device,
-    };
+    let rollout = loaded.rollout();
+    let stats = &loaded.latent_stats;
     // Driving on at 8 m/s with a gentle curve, the whole way.
     let interval = config.frame_interval_s;
-    let cruise = EgoAction {
-        speed_mps: 8.0,
-        yaw_rate_rps: 0.05,
-        dx: 8.0 * interval,
-        dy: 0.0,
-        dyaw: 0.05 * interval,
-        dt_s: interval,
-    };
+    let cruise = constant_turn(8.0, 0.05, interval);
     let mut actions = vec![cruise; p];
     let channels = stats.stats.mean.len();
     let mut seconds = 0.0;
@@ -190,15 +165,8 @@ fn the_rollout_node_counts_forecasts_outside_the_training_range() {
     };
     let figures = |output: std::process::Output| -> (f64, f64) {
         assert!(output.status.success(), "{}", text(&output));
-        let report: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(&metrics).expect("metrics")).expect("json");
-        let rollout = report["nodes"]
-            .as_array()
-            .expect("nodes")
-            .iter()
-            .find(|n| n["id"] == "rollout")
-            .expect("rollout")
-            .clone();
+        let report = read_json(&metrics);
+        let rollout = node(&report, "rollout");
         (
             rollout["extra"]["forecasts"].as_f64().expect("forecasts"),
             rollout["extra"]["forecasts_outside_training"]

@@ -10,10 +10,9 @@ mod common;
 use common::{bevworld_owned, repo, text};
 
 use bevworld_sinks::npy::read_npy_f32;
-use bevworld_types::{EgoAction, LatentStatsFile, Pose, stats_path_for};
+use bevworld_types::{EgoAction, Pose};
 use bevworld_world_model::manoeuvre::Manoeuvre;
-use bevworld_world_model::rollout::Rollout;
-use bevworld_world_model::{DdimConfig, Spacing, WorldModelConfig, load_weights};
+use bevworld_world_model::{DdimConfig, LoadedWorldModel, Spacing};
 use burn::prelude::*;
 use glam::{DMat4, DVec4};
 
@@ -96,27 +95,9 @@ fn a_left_and_a_right_turn_forecast_different_futures() {
         })
         .collect();
 
-    let root = repo();
-    let config =
-        WorldModelConfig::from_yaml_file(&root.join("configs/models/world-model-tiny.yaml"))
-            .expect("config");
-    let tokenizer_weights = root.join("nodes/tokenizer/weights/tokenizer-tiny.bpk");
-    let stats = LatentStatsFile::load(&stats_path_for(&tokenizer_weights)).expect("stats");
-    let device = Device::flex();
-    let weights = load_weights(
-        &config,
-        &root.join("nodes/world_model/weights/world-model-tiny.bpk"),
-        Some((&stats.model, &stats.weights_hash)),
-        &device,
-    )
-    .expect("the shipped world model pairs with the shipped tokenizer");
-    let rollout = Rollout {
-        model: &weights.model,
-        config: &config,
-        action_stats: &weights.meta.action_stats,
-        latent_stats: &stats.stats,
-        device,
-    };
+    let loaded = LoadedWorldModel::shipped_tiny(&repo(), Device::flex())
+        .expect("the shipped world model pairs with the shipped tokenizer");
+    let (config, rollout) = (&loaded.config, loaded.rollout());
     // The shipped sampler: one DDIM step (configs/models/train-world-model-tiny.yaml).
     let sampler = |seed: u64| DdimConfig {
         steps: 1,

@@ -14,9 +14,8 @@ use std::path::{Path, PathBuf};
 use bevworld_bench::{markdown_table, results_dir, write_results};
 use bevworld_plot::{Panel, Series, panels_png};
 use bevworld_sinks::npy::read_npy_f32;
-use bevworld_types::{EgoAction, LatentStatsFile, Pose};
-use bevworld_world_model::rollout::Rollout;
-use bevworld_world_model::{DdimConfig, Spacing, WorldModelConfig, load_weights};
+use bevworld_types::{EgoAction, Pose};
+use bevworld_world_model::{DdimConfig, LoadedWorldModel, Spacing};
 use burn::prelude::*;
 use glam::{DMat4, DVec4};
 
@@ -102,27 +101,9 @@ fn main() {
     let latents_dir = std::env::args()
         .nth(1)
         .map_or_else(|| root.join("out/long-rollout/latents"), PathBuf::from);
-    let config =
-        WorldModelConfig::from_yaml_file(&root.join("configs/models/world-model-tiny.yaml"))
-            .expect("config");
-    let stats =
-        LatentStatsFile::load(&root.join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"))
-            .expect("latent statistics");
-    let device = Device::flex();
-    let weights = load_weights(
-        &config,
-        &root.join("nodes/world_model/weights/world-model-tiny.bpk"),
-        Some((&stats.model, &stats.weights_hash)),
-        &device,
-    )
-    .expect("shipped world model");
-    let rollout = Rollout {
-        model: &weights.model,
-        config: &config,
-        action_stats: &weights.meta.action_stats,
-        latent_stats: &stats.stats,
-        device,
-    };
+    let loaded =
+        LoadedWorldModel::shipped_tiny(&root, Device::flex()).expect("shipped world model");
+    let (config, stats, rollout) = (&loaded.config, &loaded.latent_stats, loaded.rollout());
     let (p, n) = (config.context_frames, config.future_frames);
     let interval = config.frame_interval_s;
     let frames_ahead = (SECONDS / interval).round() as usize;

@@ -15,10 +15,9 @@ use std::time::Instant;
 use bevworld_bench::{markdown_table, percentile, results_dir, write_results};
 use bevworld_blocks::init::random_normal;
 use bevworld_plot::{Labelled, Reference, ScatterPlot, scatter_png};
-use bevworld_types::LatentStatsFile;
 use bevworld_world_model::{
-    DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WorldModelConfig, forecast_caching_context,
-    forecast_recomputing_context, load_weights,
+    ContextPasses, DdimConfig, ForecastInputs, LoadedWorldModel, NoiseSchedule, Spacing,
+    forecast_with,
 };
 use burn::prelude::*;
 
@@ -110,20 +109,8 @@ fn median_ms(repeats: usize, mut run: impl FnMut()) -> f64 {
 /// The cache's saving: the shipped model's forecast with the condition frames run once, and
 /// run again at every step, on one context.
 fn cache_timings(root: &Path) -> Vec<(usize, f64, f64)> {
-    let config =
-        WorldModelConfig::from_yaml_file(&root.join("configs/models/world-model-tiny.yaml"))
-            .expect("world model config");
-    let stats =
-        LatentStatsFile::load(&root.join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"))
-            .expect("latent statistics");
-    let device = Device::flex();
-    let weights = load_weights(
-        &config,
-        &root.join("nodes/world_model/weights/world-model-tiny.bpk"),
-        Some((&stats.model, &stats.weights_hash)),
-        &device,
-    )
-    .expect("shipped world model");
+    let loaded = LoadedWorldModel::shipped_tiny(root, Device::flex()).expect("shipped world model");
+    let (config, weights, device) = (&loaded.config, &loaded.weights, loaded.device.clone());
     let [h, w] = config.latent_size;
     let (p, n) = (config.context_frames, config.future_frames);
     // Timing does not depend on the values: a standardised context, ordinary actions.
@@ -150,18 +137,25 @@ fn cache_timings(root: &Path) -> Vec<(usize, f64, f64)> {
             };
             let repeats = if steps >= 16 { 1 } else { 3 };
             let cached = median_ms(repeats, || {
-                let _ =
-                    forecast_caching_context(&weights.model, &config, &schedule, &inputs, &sampler)
-                        .expect("forecast")
-                        .into_data();
-            });
-            let recomputed = median_ms(repeats, || {
-                let _ = forecast_recomputing_context(
+                let _ = forecast_with(
                     &weights.model,
-                    &config,
+                    config,
                     &schedule,
                     &inputs,
                     &sampler,
+                    ContextPasses::Cached,
+                )
+                .expect("forecast")
+                .into_data();
+            });
+            let recomputed = median_ms(repeats, || {
+                let _ = forecast_with(
+                    &weights.model,
+                    config,
+                    &schedule,
+                    &inputs,
+                    &sampler,
+                    ContextPasses::EveryStep,
                 )
                 .expect("forecast")
                 .into_data();

@@ -30,10 +30,20 @@ pub fn seeded_noise(seed: u64, shape: [usize; 5], device: &Device) -> Tensor<5> 
     )
 }
 
+/// How a forecast runs its condition frames through the network.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ContextPasses {
+    /// Once per forecast, their temporal keys and values cached (`ContextCache`).
+    Cached,
+    /// Again at every step, with the future frames, as the plain loop does: to measure what
+    /// the cache saves, and to check that it changes nothing.
+    EveryStep,
+}
+
 /// Samples the N future latents (standardised). Condition frames are never altered: they
-/// enter at level 0. With more than one step they run through the network once per forecast
-/// (`ContextCache`), not once per step; with one step there is nothing to reuse, and the one
-/// pass over all frames is the faster (measured: bench/results/speed-vs-error.md).
+/// enter at level 0. With more than one step they run through the network once per forecast,
+/// not once per step; with one step there is nothing to reuse, and the one pass over all
+/// frames is as fast (measured: bench/results/speed-vs-error.md).
 // -> [B, N, C', H, W]
 pub fn forecast(
     model: &WorldModel,
@@ -42,39 +52,22 @@ pub fn forecast(
     inputs: &ForecastInputs,
     sampler: &DdimConfig,
 ) -> Result<Tensor<5>, DdimError> {
-    sample(model, config, schedule, inputs, sampler, sampler.steps > 1)
+    let passes = if sampler.steps > 1 {
+        ContextPasses::Cached
+    } else {
+        ContextPasses::EveryStep
+    };
+    forecast_with(model, config, schedule, inputs, sampler, passes)
 }
 
-/// The forecast with the condition frames cached, whatever the step count.
-pub fn forecast_caching_context(
+/// `forecast`, running the condition frames as `passes` says whatever the step count.
+pub fn forecast_with(
     model: &WorldModel,
     config: &WorldModelConfig,
     schedule: &NoiseSchedule,
     inputs: &ForecastInputs,
     sampler: &DdimConfig,
-) -> Result<Tensor<5>, DdimError> {
-    sample(model, config, schedule, inputs, sampler, true)
-}
-
-/// The forecast with the condition frames run again at every step, as the plain loop does:
-/// to measure what the cache saves, and to check that it changes nothing.
-pub fn forecast_recomputing_context(
-    model: &WorldModel,
-    config: &WorldModelConfig,
-    schedule: &NoiseSchedule,
-    inputs: &ForecastInputs,
-    sampler: &DdimConfig,
-) -> Result<Tensor<5>, DdimError> {
-    sample(model, config, schedule, inputs, sampler, false)
-}
-
-fn sample(
-    model: &WorldModel,
-    config: &WorldModelConfig,
-    schedule: &NoiseSchedule,
-    inputs: &ForecastInputs,
-    sampler: &DdimConfig,
-    cache_context: bool,
+    passes: ContextPasses,
 ) -> Result<Tensor<5>, DdimError> {
     sampler.check(schedule)?;
     let [batch, context, channels, height, width] = inputs.context.dims();
@@ -84,7 +77,7 @@ fn sample(
     let mut x = seeded_noise(sampler.seed, shape, &device);
     let target = config.diffusion.target;
     let plan = timesteps(schedule.steps(), sampler.steps, sampler.spacing);
-    let cache = cache_context.then(|| {
+    let cache = (passes == ContextPasses::Cached).then(|| {
         model.context(
             inputs.context.clone(),
             inputs.actions.clone().narrow(1, 0, context),

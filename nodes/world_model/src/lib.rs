@@ -30,13 +30,11 @@ pub use actions::{ACTION_FEATURES, ActionStats};
 pub use config::{DiffusionConfig, ScheduleKind, Target, WorldModelConfig};
 pub use ddim::{DdimConfig, Spacing};
 pub use ego_warp::{LatentGrid, PlanarMotion, warp_latent};
-pub use forecast::{
-    ForecastInputs, forecast, forecast_caching_context, forecast_recomputing_context,
-};
+pub use forecast::{ContextPasses, ForecastInputs, forecast, forecast_with};
 pub use manoeuvre::Manoeuvre;
 pub use model::{ContextCache, WorldModel};
 pub use nodes::register;
-pub use rollout::{Rollout, RolloutError, RolloutOutput};
+pub use rollout::{LoadError, LoadedWorldModel, Rollout, RolloutError, RolloutOutput};
 pub use schedule::NoiseSchedule;
 pub use weights::{
     WeightsMeta, WorldModelWeights, WorldModelWeightsError, load_weights, save_weights,

@@ -3,16 +3,19 @@
 //! model's; the future frames are sampled (residual models add the context's ego-warped
 //! current latent) and de-standardised.
 
-use bevworld_types::{EgoAction, LatentStats};
+use std::path::Path;
+
+use bevworld_types::{EgoAction, LatentStats, LatentStatsFile, StatsFileError};
 use burn::prelude::*;
 
 use crate::actions::{ACTION_FEATURES, ActionStats};
-use crate::config::WorldModelConfig;
+use crate::config::{ConfigError, WorldModelConfig};
 use crate::ddim::{DdimConfig, DdimError};
 use crate::ego_warp::{LatentGrid, PlanarMotion, warp_latent};
 use crate::forecast::{ForecastInputs, forecast};
 use crate::model::WorldModel;
 use crate::schedule::NoiseSchedule;
+use crate::weights::{WorldModelWeights, WorldModelWeightsError, load_weights};
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum RolloutError {
@@ -139,5 +142,71 @@ impl Rollout<'_> {
             future: destandardised(&values),
             ego_warped,
         })
+    }
+}
+
+/// Why a world model could not be loaded for forecasting.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Stats(#[from] StatsFileError),
+    #[error(transparent)]
+    Weights(#[from] WorldModelWeightsError),
+}
+
+/// A world model loaded with the latent statistics it forecasts with: its config, its weights
+/// (checked to pair with the statistics' tokenizer) and a device. What a tool, a benchmark or a
+/// test loads to run `Rollout`s.
+pub struct LoadedWorldModel {
+    pub config: WorldModelConfig,
+    pub weights: WorldModelWeights,
+    pub latent_stats: LatentStatsFile,
+    pub device: Device,
+}
+
+impl LoadedWorldModel {
+    pub fn load(
+        config: &Path,
+        weights: &Path,
+        latent_stats: &Path,
+        device: Device,
+    ) -> Result<Self, LoadError> {
+        let config = WorldModelConfig::from_yaml_file(config)?;
+        let latent_stats = LatentStatsFile::load(latent_stats)?;
+        let weights = load_weights(
+            &config,
+            weights,
+            Some((&latent_stats.model, &latent_stats.weights_hash)),
+            &device,
+        )?;
+        Ok(Self {
+            config,
+            weights,
+            latent_stats,
+            device,
+        })
+    }
+
+    /// The shipped tiny world model and the shipped tokenizer's statistics, from the
+    /// repository at `root`.
+    pub fn shipped_tiny(root: &Path, device: Device) -> Result<Self, LoadError> {
+        Self::load(
+            &root.join("configs/models/world-model-tiny.yaml"),
+            &root.join("nodes/world_model/weights/world-model-tiny.bpk"),
+            &root.join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"),
+            device,
+        )
+    }
+
+    pub fn rollout(&self) -> Rollout<'_> {
+        Rollout {
+            model: &self.weights.model,
+            config: &self.config,
+            action_stats: &self.weights.meta.action_stats,
+            latent_stats: &self.latent_stats.stats,
+            device: self.device.clone(),
+        }
     }
 }

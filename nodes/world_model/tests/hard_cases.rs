@@ -12,6 +12,7 @@
 
 use bevworld_blocks::init::random_normal;
 use bevworld_blocks::seeded_init;
+use bevworld_types::manoeuvre::constant_turn;
 use bevworld_types::{EgoAction, LatentStats};
 use bevworld_world_model::config::{DiffusionConfig, ScheduleKind, Target};
 use bevworld_world_model::ddim::{clean_and_noise, step, timesteps};
@@ -131,15 +132,9 @@ fn small_model(seed: u64) -> (WorldModelConfig, WorldModel) {
     (c, model)
 }
 
+/// Half a second at a constant speed and yaw rate.
 fn action(speed: f64, yaw_rate: f64) -> EgoAction {
-    EgoAction {
-        speed_mps: speed,
-        yaw_rate_rps: yaw_rate,
-        dx: speed * 0.5,
-        dy: 0.0,
-        dyaw: yaw_rate * 0.5,
-        dt_s: 0.5,
-    }
+    constant_turn(speed, yaw_rate, 0.5)
 }
 
 /// Action statistics of ordinary driving: 4 to 12 m/s, gentle turns.
@@ -150,26 +145,46 @@ fn driving_stats() -> ActionStats {
     ActionStats::compute(&actions).expect("stats")
 }
 
-fn latent_stats(channels: usize) -> LatentStats {
-    LatentStats {
-        mean: vec![0.1; channels],
-        std: vec![0.8; channels],
-        frames: 10,
+/// The small model with ordinary driving's action statistics and plain latent statistics.
+struct SmallRollout {
+    config: WorldModelConfig,
+    model: WorldModel,
+    action_stats: ActionStats,
+    latent_stats: LatentStats,
+}
+
+impl SmallRollout {
+    fn new(seed: u64) -> Self {
+        let (config, model) = small_model(seed);
+        let latent_stats = LatentStats {
+            mean: vec![0.1; config.latent_channels],
+            std: vec![0.8; config.latent_channels],
+            frames: 10,
+        };
+        Self {
+            config,
+            model,
+            action_stats: driving_stats(),
+            latent_stats,
+        }
+    }
+
+    fn rollout(&self) -> Rollout<'_> {
+        Rollout {
+            model: &self.model,
+            config: &self.config,
+            action_stats: &self.action_stats,
+            latent_stats: &self.latent_stats,
+            device: device(),
+        }
     }
 }
 
 #[test]
 fn actions_outside_the_training_range_give_finite_forecasts_and_are_flagged() {
-    let (c, model) = small_model(3);
-    let stats = driving_stats();
-    let latents = latent_stats(c.latent_channels);
-    let rollout = Rollout {
-        model: &model,
-        config: &c,
-        action_stats: &stats,
-        latent_stats: &latents,
-        device: device(),
-    };
+    let small = SmallRollout::new(3);
+    let (c, stats) = (&small.config, &small.action_stats);
+    let rollout = small.rollout();
     let [h, w] = c.latent_size;
     let cells = c.latent_channels * h * w;
     let context: Vec<Vec<f32>> = (0..c.context_frames)
@@ -203,16 +218,9 @@ fn actions_outside_the_training_range_give_finite_forecasts_and_are_flagged() {
 
 #[test]
 fn an_all_zero_context_gives_a_finite_forecast() {
-    let (c, model) = small_model(4);
-    let stats = driving_stats();
-    let latents = latent_stats(c.latent_channels);
-    let rollout = Rollout {
-        model: &model,
-        config: &c,
-        action_stats: &stats,
-        latent_stats: &latents,
-        device: device(),
-    };
+    let small = SmallRollout::new(4);
+    let (c, latents) = (&small.config, &small.latent_stats);
+    let rollout = small.rollout();
     let [h, w] = c.latent_size;
     let cells = c.latent_channels * h * w;
     let zeros = vec![vec![0.0f32; cells]; c.context_frames];

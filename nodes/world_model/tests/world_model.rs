@@ -8,9 +8,9 @@ use bevworld_blocks::init::{random_normal, random_tensor};
 use bevworld_blocks::{causal_mask, seeded_init};
 use bevworld_world_model::weights::meta_path_for;
 use bevworld_world_model::{
-    ActionStats, DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WeightsMeta, WorldModel,
-    WorldModelConfig, WorldModelWeightsError, forecast, forecast_caching_context,
-    forecast_recomputing_context, load_weights, save_weights,
+    ActionStats, ContextPasses, DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WeightsMeta,
+    WorldModel, WorldModelConfig, WorldModelWeightsError, forecast, forecast_with, load_weights,
+    save_weights,
 };
 use burn::prelude::*;
 
@@ -375,11 +375,26 @@ fn the_context_cache_changes_no_prediction_and_no_forecast() {
             seed: 5,
         };
         let a = values(
-            forecast_caching_context(&model, &c, &schedule, &inputs, &sampler).expect("cached"),
+            forecast_with(
+                &model,
+                &c,
+                &schedule,
+                &inputs,
+                &sampler,
+                ContextPasses::Cached,
+            )
+            .expect("cached"),
         );
         let b = values(
-            forecast_recomputing_context(&model, &c, &schedule, &inputs, &sampler)
-                .expect("recomputed"),
+            forecast_with(
+                &model,
+                &c,
+                &schedule,
+                &inputs,
+                &sampler,
+                ContextPasses::EveryStep,
+            )
+            .expect("recomputed"),
         );
         let gap = a
             .iter()
