@@ -2,24 +2,10 @@
 
 mod common;
 
+use common::{bevworld, node, text};
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bevworld(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bevworld"))
-        .args(args)
-        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap()
-}
-
-fn text(output: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    )
-}
+use std::process::Command;
 
 /// A small synthetic dataset for tests: 32x18 cameras, a 3-degree LiDAR and one agent;
 /// `extra` adds the scene count and length.
@@ -98,12 +84,7 @@ fn replay_writes_pngs_and_a_ply_that_parse_back() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
     assert_eq!(report["outcome"], "completed");
-    let source = report["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["id"] == "source")
-        .unwrap();
+    let source = node(&report, "source");
     assert_eq!(source["items_out"], 1);
 }
 
@@ -223,12 +204,7 @@ fn a_corrupt_frame_is_skipped_under_skip_and_stops_under_stop() {
     assert!(skipped.status.success(), "{}", text(&skipped));
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("skip.json")).unwrap()).unwrap();
-    let source = report["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["id"] == "source")
-        .unwrap();
+    let source = node(&report, "source");
     assert_eq!(source["skips"], 1);
     assert_eq!(source["items_out"], 11, "the other 11 frames go through");
     let stopped = run("stop");
@@ -272,13 +248,7 @@ fn shard_and_overwrite_flags_reach_the_nodes() {
         assert!(output.status.success(), "{}", text(&output));
         let report: serde_json::Value =
             serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
-        let export = report["nodes"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|n| n["id"] == "export")
-            .unwrap()
-            .clone();
+        let export = node(&report, "export").clone();
         (
             export["items_in"].as_u64().unwrap(),
             export["extra"]["files_written"].as_f64().unwrap(),
@@ -417,12 +387,7 @@ fn the_source_counts_dropped_points_and_normalised_rotations_in_the_metrics() {
     assert!(output.status.success(), "{}", text(&output));
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
-    let source = report["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["id"] == "source")
-        .unwrap();
+    let source = node(&report, "source");
     assert_eq!(source["extra"]["non_finite_points_dropped"], 3.0);
     assert_eq!(source["extra"]["non_unit_quaternions_normalised"], 1.0);
     // The table printed at the end shows them.
@@ -542,14 +507,7 @@ fn ctrl_c_drains_and_exits_cleanly() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
     assert_eq!(report["outcome"], "drained");
-    let produced = report["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["id"] == "source")
-        .unwrap()["items_out"]
-        .as_u64()
-        .unwrap();
+    let produced = node(&report, "source")["items_out"].as_u64().unwrap();
     assert!((5..1000).contains(&produced), "produced {produced}");
     // Every frame the source released reached the PLY sink (nothing in flight was lost).
     let written = std::fs::read_dir(out.path())
@@ -585,12 +543,7 @@ fn pillarize_reports_its_counts_in_the_metrics() {
     assert!(output.status.success(), "{}", text(&output));
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&metrics).unwrap()).unwrap();
-    let node = report["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["id"] == "pillars")
-        .unwrap();
+    let node = node(&report, "pillars");
     let extra = &node["extra"];
     assert_eq!(extra["points_in"], 34_688.0);
     let accounted = [

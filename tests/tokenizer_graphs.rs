@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{bevworld, bevworld_owned, reconstruct_outputs, text};
+use common::{bevworld, bevworld_owned, node, reconstruct_outputs, text};
 
 use std::path::Path;
 
@@ -26,15 +26,6 @@ fn synth_small(out: &Path) {
         "1",
     ]);
     assert!(output.status.success(), "{}", text(&output));
-}
-
-fn node<'a>(report: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
-    report["nodes"]
-        .as_array()
-        .expect("nodes")
-        .iter()
-        .find(|n| n["id"] == id)
-        .unwrap_or_else(|| panic!("no node {id} in the metrics"))
 }
 
 fn run_reconstruct(data: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {

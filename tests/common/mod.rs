@@ -23,6 +23,21 @@ pub fn bevworld_owned(args: &[String]) -> Output {
     bevworld(&args.iter().map(String::as_str).collect::<Vec<_>>())
 }
 
+/// A node's row of a run's `--metrics` report.
+pub fn node<'a>(report: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
+    report["nodes"]
+        .as_array()
+        .expect("nodes")
+        .iter()
+        .find(|n| n["id"] == id)
+        .unwrap_or_else(|| panic!("no node {id} in the metrics"))
+}
+
+/// A JSON file a run wrote (a `--metrics` report, an index, scores).
+pub fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(path).expect("the run wrote it")).expect("JSON")
+}
+
 pub fn text(output: &Output) -> String {
     format!(
         "{}{}",

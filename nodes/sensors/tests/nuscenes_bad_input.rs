@@ -47,6 +47,15 @@ fn edit_table(dir: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value))
     std::fs::write(&path, serde_json::to_vec(&value).unwrap()).unwrap();
 }
 
+fn front_camera_file(dir: &Path) -> PathBuf {
+    std::fs::read_dir(dir.join("samples/CAM_FRONT"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path()
+}
+
 fn lidar_file(dir: &Path) -> PathBuf {
     let folder = dir.join("samples/LIDAR_TOP");
     std::fs::read_dir(folder)
@@ -138,13 +147,7 @@ fn corrupt_jpeg_names_the_image() {
     let Some(dir) = sample_copy() else {
         return;
     };
-    let folder = dir.path().join("samples/CAM_FRONT");
-    let path = std::fs::read_dir(folder)
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .path();
+    let path = front_camera_file(dir.path());
     let mut bytes = std::fs::read(&path).unwrap();
     // Garbage over the SOI marker and the first segments.
     for (i, byte) in bytes.iter_mut().take(600).enumerate() {
@@ -265,13 +268,7 @@ fn a_truncated_jpeg_is_an_error_not_a_grey_image() {
     let Some(dir) = sample_copy() else {
         return;
     };
-    let folder = dir.path().join("samples/CAM_FRONT");
-    let path = std::fs::read_dir(folder)
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .path();
+    let path = front_camera_file(dir.path());
     let bytes = std::fs::read(&path).unwrap();
     // Cut to a third, as an interrupted copy leaves it.
     std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
@@ -287,13 +284,7 @@ fn a_jpeg_with_scrambled_bytes_is_an_error_not_a_grey_image() {
     let Some(dir) = sample_copy() else {
         return;
     };
-    let folder = dir.path().join("samples/CAM_FRONT");
-    let path = std::fs::read_dir(folder)
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .path();
+    let path = front_camera_file(dir.path());
     let bytes = std::fs::read(&path).unwrap();
     // Whole, it decodes.
     assert!(bevworld_sensors::image_file::decode_rgb(&bytes).is_ok());
