@@ -213,8 +213,16 @@ fn main() {
             fmt(latency(table, "rollout_p99"), 0),
             fmt(latency(table, "with_render_p50"), 0),
             fmt(latency(table, "with_render_p99"), 0),
-            fmt(chamfer_1, 3),
-            fmt(chamfer_3, 3),
+            format!(
+                "{} ± {}",
+                fmt(chamfer_1, 3),
+                fmt(figure(table, 1.0, "model", "chamfer_scene_std"), 3)
+            ),
+            format!(
+                "{} ± {}",
+                fmt(chamfer_3, 3),
+                fmt(figure(table, 3.0, "model", "chamfer_scene_std"), 3)
+            ),
             fmt(l1_1, 3),
             fmt(l1_3, 3),
             format!(
@@ -247,8 +255,8 @@ fn main() {
             "rollout p99 (ms)",
             "+ render p50 (ms)",
             "+ render p99 (ms)",
-            "Chamfer 1 s (m²)",
-            "Chamfer 3 s (m²)",
+            "Chamfer 1 s (m², ± spread over scenes)",
+            "Chamfer 3 s (m², ± spread over scenes)",
             "latent L1 1 s",
             "latent L1 3 s",
             &format!("vs {reference_steps} steps: Chamfer 1 s / 3 s / L1 3 s"),
