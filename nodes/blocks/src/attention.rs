@@ -5,7 +5,8 @@
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::softmax;
+
+use crate::activation::softmax_last;
 
 /// Additive attention bias for token pairs that must not attend to each other. Large enough
 /// that `exp` gives exactly 0 in f32, finite so that no backward pass ever sees `inf - inf`.
@@ -41,7 +42,7 @@ pub fn attention_logits(q: Tensor<4>, k: Tensor<4>) -> Tensor<4> {
 /// `softmax(logits) v`.
 // logits: [B, H, N, N], v: [B, H, N, d] -> [B, H, N, d]
 pub fn attend(logits: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
-    softmax(logits, 3).matmul(v)
+    softmax_last(logits).matmul(v)
 }
 
 /// Projects tokens to per-head queries, keys and values with one fused linear layer.

@@ -6,11 +6,65 @@
 use burn::prelude::*;
 use burn::tensor::DType;
 
+/// Whether a host kernel may replace burn's op on `tensor`: an f32 tensor on the flex (CPU)
+/// device, outside autodiff.
+pub fn runs_on_host<const D: usize>(tensor: &Tensor<D>) -> bool {
+    !tensor.is_autodiff() && tensor.dtype() == DType::F32 && tensor.device() == Device::flex()
+}
+
 /// The values of `tensor`, row-major, when a host kernel may replace the op: an f32 tensor on
 /// the flex (CPU) device, outside autodiff. `None` otherwise, and the caller runs burn's op.
 pub fn inference_values<const D: usize>(tensor: &Tensor<D>) -> Option<Vec<f32>> {
-    if tensor.is_autodiff() || tensor.dtype() != DType::F32 || tensor.device() != Device::flex() {
+    if !runs_on_host(tensor) {
         return None;
     }
     tensor.clone().into_data().try_into_vec::<f32>().ok()
+}
+
+/// `inference_values` of a tensor the caller gives up, so that its buffer can be moved out
+/// rather than copied (a tensor still shared must be copied); the tensor back when a host
+/// kernel may not replace the op.
+pub fn into_inference_values<const D: usize>(tensor: Tensor<D>) -> Result<Vec<f32>, Tensor<D>> {
+    if !runs_on_host(&tensor) {
+        return Err(tensor);
+    }
+    // The dtype is checked above; reading f32 data as f32 has no other way to fail.
+    Ok(tensor
+        .into_data()
+        .try_into_vec::<f32>()
+        .expect("an f32 tensor's data reads as f32"))
+}
+
+/// Runs `kernel` compiled for the widest vector instructions this CPU has (AVX-512, AVX2 + FMA,
+/// NEON), detected at run time: the binary is built for the baseline x86-64 (SSE2), where our
+/// branch-free math (`fast_math`) vectorises only 4 lanes wide and without FMA.
+///
+/// The kernel is a `macerator::WithSimd` whose `with_simd` is `#[inline(always)]`, and every
+/// function its loop calls is `#[inline(always)]` too: only code inlined into the dispatched
+/// function is compiled with the wider instructions (a closure would stay a separate function,
+/// built for the baseline). Results do not depend on the instructions chosen beyond the
+/// rounding of fused multiply-adds.
+#[inline(always)]
+pub fn vectorized<K: macerator::WithSimd>(kernel: K) -> K::Output {
+    macerator::AutoArch::new().dispatch(kernel)
+}
+
+/// `values[i] = f(values[i])` for every value, as one vectorised loop: `f` must be an
+/// `#[inline(always)]` function (a function item, not a pointer, so that the call is static)
+/// of branch-free arithmetic (`fast_math`).
+pub fn map_in_place<F: Fn(f32) -> f32>(values: &mut [f32], f: F) {
+    struct Map<'a, F> {
+        values: &'a mut [f32],
+        f: F,
+    }
+    impl<F: Fn(f32) -> f32> macerator::WithSimd for Map<'_, F> {
+        type Output = ();
+        #[inline(always)]
+        fn with_simd<S: macerator::Simd>(self) {
+            for v in self.values.iter_mut() {
+                *v = (self.f)(*v);
+            }
+        }
+    }
+    vectorized(Map { values, f });
 }

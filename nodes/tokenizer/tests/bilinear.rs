@@ -147,3 +147,18 @@ fn gradients_match_grid_sample_2d() {
     );
     assert!(grid_ours.iter().any(|&v| v != 0.0));
 }
+
+#[test]
+fn the_host_kernel_of_inference_equals_the_tensor_ops_of_training() {
+    // On flex outside autodiff the sampler is one host loop; under autodiff it is burn's ops.
+    let host = values(ours(maps(&Device::flex()), grid(&Device::flex())));
+    let device = Device::flex().autodiff();
+    let tensor_ops = values(ours(maps(&device), grid(&device)));
+    assert_eq!(host.len(), tensor_ops.len());
+    for (i, (a, b)) in host.iter().zip(&tensor_ops).enumerate() {
+        assert!(
+            (a - b).abs() <= 1e-6,
+            "element {i}: host {a}, tensor ops {b}"
+        );
+    }
+}

@@ -14,10 +14,10 @@
 
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::softmax;
 
 use crate::encoder::bilinear::sample_bilinear;
 use bevworld_blocks::MASKED;
+use bevworld_blocks::activation::softmax_last;
 
 #[derive(Config, Debug, PartialEq)]
 pub struct DeformableFusionConfig {
@@ -104,7 +104,7 @@ impl DeformableFusion {
         let valid_qck = valid.swap_dims(0, 1).reshape([queries, cameras * k]); // [Q, N_c*K]
         let logits = self.weights.forward(query.clone()) // [Q, N_c*K]
             + (valid_qck.clone().neg().add_scalar(1.0)).mul_scalar(MASKED);
-        let attention = (softmax(logits, 1) * valid_qck)
+        let attention = (softmax_last(logits) * valid_qck)
             .reshape([queries, cameras, k])
             .swap_dims(0, 1); // [N_c, Q, K]
 

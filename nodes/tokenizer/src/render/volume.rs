@@ -6,7 +6,7 @@
 //! weights sum to `1 − T_N ≤ 1`, the ray's opacity; the rest of the ray is transparent.
 
 use bevworld_blocks::fast_math::{exp, log_sigmoid};
-use bevworld_blocks::host::inference_values;
+use bevworld_blocks::host::{into_inference_values, vectorized};
 use burn::prelude::*;
 use burn::tensor::activation;
 use rayon::prelude::*;
@@ -17,14 +17,14 @@ use rayon::prelude::*;
 /// autodiff or on another device, burn ops with their backward passes.
 // [R, S] -> [R, S]
 pub fn render_weights(alpha_logits: Tensor<2>) -> Tensor<2> {
-    if let Some(mut values) = inference_values(&alpha_logits) {
-        let [rays, samples] = alpha_logits.dims();
-        render_weights_on_host(&mut values, samples);
-        return Tensor::from_data(
-            TensorData::new(values, [rays, samples]),
-            &alpha_logits.device(),
-        );
-    }
+    let ([rays, samples], device) = (alpha_logits.dims(), alpha_logits.device());
+    let alpha_logits = match into_inference_values(alpha_logits) {
+        Ok(mut values) => {
+            render_weights_on_host(&mut values, samples);
+            return Tensor::from_data(TensorData::new(values, [rays, samples]), &device);
+        }
+        Err(alpha_logits) => alpha_logits,
+    };
     let log_alpha = activation::log_sigmoid(alpha_logits.clone()); // [R, S]
     let log_transparency = activation::log_sigmoid(alpha_logits.neg()); // [R, S], log(1 - α)
     // Exclusive cumulative sum: the inclusive one minus the sample's own term.
@@ -45,23 +45,36 @@ pub fn render_weights_on_host(logits: &mut [f32], samples: usize) {
     }
     logits
         .par_chunks_mut(samples * RAYS_PER_TASK)
-        .for_each(|rays| {
-            let mut log_transparency = vec![0f32; samples];
-            for ray in rays.chunks_exact_mut(samples) {
-                for (s, t) in ray.iter_mut().zip(&mut log_transparency) {
-                    *t = log_sigmoid(-*s);
-                    *s = log_sigmoid(*s);
-                }
-                let mut running = 0f32;
-                for (s, t) in ray.iter_mut().zip(&log_transparency) {
-                    running += t;
-                    *s += running - t;
-                }
-                for s in ray.iter_mut() {
-                    *s = exp(*s);
-                }
+        .for_each(|rays| vectorized(WeightsKernel { rays, samples }));
+}
+
+/// `render_weights_on_host` of one chunk of rays, compiled for the CPU's vector width.
+struct WeightsKernel<'a> {
+    rays: &'a mut [f32],
+    samples: usize,
+}
+
+impl macerator::WithSimd for WeightsKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: macerator::Simd>(self) {
+        let mut log_transparency = vec![0f32; self.samples];
+        for ray in self.rays.chunks_exact_mut(self.samples) {
+            for (s, t) in ray.iter_mut().zip(&mut log_transparency) {
+                *t = log_sigmoid(-*s);
+                *s = log_sigmoid(*s);
             }
-        });
+            let mut running = 0f32;
+            for (s, t) in ray.iter_mut().zip(&log_transparency) {
+                running += t;
+                *s += running - t;
+            }
+            for s in ray.iter_mut() {
+                *s = exp(*s);
+            }
+        }
+    }
 }
 
 /// Log transmittance after each sample (inclusive): `log T_{i+1}`. A ray may stop once it
