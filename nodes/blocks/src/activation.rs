@@ -86,33 +86,40 @@ impl macerator::WithSimd for SoftmaxRows<'_> {
     #[inline(always)]
     fn with_simd<S: macerator::Simd>(self) {
         for values in self.rows.chunks_exact_mut(self.row) {
-            let mut lanes = [f32::NEG_INFINITY; LANES];
-            let mut blocks = values.chunks_exact(LANES);
-            for block in &mut blocks {
-                for (m, &v) in lanes.iter_mut().zip(block) {
-                    *m = m.max(v);
-                }
-            }
-            let max = blocks
-                .remainder()
-                .iter()
-                .chain(&lanes)
-                .fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-            for v in values.iter_mut() {
-                *v = exp(*v - max);
-            }
-            let mut sums = [0f32; LANES];
-            let mut blocks = values.chunks_exact(LANES);
-            for block in &mut blocks {
-                for (s, &v) in sums.iter_mut().zip(block) {
-                    *s += v;
-                }
-            }
-            let sum: f32 = blocks.remainder().iter().chain(&sums).sum();
-            let inverse = 1.0 / sum;
-            for v in values.iter_mut() {
-                *v *= inverse;
-            }
+            softmax_row(values);
         }
+    }
+}
+
+/// Softmax of one row in place, written to vectorise: the maximum and the sum over
+/// `LANES` independent accumulators, the exponentials in a loop of their own.
+#[inline(always)]
+pub fn softmax_row(values: &mut [f32]) {
+    let mut lanes = [f32::NEG_INFINITY; LANES];
+    let mut blocks = values.chunks_exact(LANES);
+    for block in &mut blocks {
+        for (m, &v) in lanes.iter_mut().zip(block) {
+            *m = m.max(v);
+        }
+    }
+    let max = blocks
+        .remainder()
+        .iter()
+        .chain(&lanes)
+        .fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+    for v in values.iter_mut() {
+        *v = exp(*v - max);
+    }
+    let mut sums = [0f32; LANES];
+    let mut blocks = values.chunks_exact(LANES);
+    for block in &mut blocks {
+        for (s, &v) in sums.iter_mut().zip(block) {
+            *s += v;
+        }
+    }
+    let sum: f32 = blocks.remainder().iter().chain(&sums).sum();
+    let inverse = 1.0 / sum;
+    for v in values.iter_mut() {
+        *v *= inverse;
     }
 }

@@ -24,6 +24,8 @@ pub fn inference_values<const D: usize>(tensor: &Tensor<D>) -> Option<Vec<f32>> 
 /// `inference_values` of a tensor the caller gives up, so that its buffer can be moved out
 /// rather than copied (a tensor still shared must be copied); the tensor back when a host
 /// kernel may not replace the op.
+// The tensor comes back by value to run burn's op: boxing it would allocate on every call.
+#[allow(clippy::result_large_err)]
 pub fn into_inference_values<const D: usize>(tensor: Tensor<D>) -> Result<Vec<f32>, Tensor<D>> {
     if !runs_on_host(&tensor) {
         return Err(tensor);

@@ -4,9 +4,11 @@ use burn::module::Param;
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 
+use super::host_attention::{WindowGeometry, window_attention_on_host};
 use super::window::relative_position_index;
 use crate::attention::{attend, attention_logits, merge_heads, split_heads};
 use crate::cache::TensorCache;
+use crate::host::{inference_values, into_inference_values, runs_on_host};
 
 #[derive(Config, Debug)]
 pub struct WindowAttentionConfig {
@@ -81,6 +83,65 @@ impl WindowAttention {
             .reshape([count, self.heads, tokens, tokens]);
         }
         merge_heads(&self.proj, attend(logits, v))
+    }
+
+    /// The whole attention sub-layer of a block on its normalised `[B, H, W, C]` map, windows
+    /// of `window` tokens a side rolled by `shift`, for CPU inference: one host kernel
+    /// (`host_attention`) between the `qkv` and output projections, with no pad, roll,
+    /// partition or mask tensor. `None` when the map is under autodiff or on another device:
+    /// the caller runs the tensor path.
+    // [B, H, W, C] -> [B, H, W, C]
+    pub fn forward_map_on_host(
+        &self,
+        map: &Tensor<4>,
+        window: usize,
+        shift: usize,
+    ) -> Option<Tensor<4>> {
+        if !runs_on_host(map) {
+            return None;
+        }
+        let [batch, height, width, channels] = map.dims();
+        let device = map.device();
+        let tokens = window * window;
+        let qkv = into_inference_values(self.qkv.forward(map.clone())).ok()?;
+        let qkv_bias = self
+            .qkv
+            .bias
+            .as_ref()
+            .and_then(|bias| inference_values(&bias.val()))
+            .unwrap_or_else(|| vec![0.0; 3 * channels]);
+        let table = inference_values(&self.bias_table.val()).unwrap_or_default();
+        let heads = self.heads;
+        let index = self.offsets(tokens);
+        // [heads, N, N]
+        let mut bias = vec![0f32; heads * tokens * tokens];
+        for (pair, &row) in index.iter().enumerate() {
+            for head in 0..heads {
+                bias[head * tokens * tokens + pair] = table
+                    .get(row as usize * heads + head)
+                    .copied()
+                    .unwrap_or(0.0);
+            }
+        }
+        let out = window_attention_on_host(
+            &qkv,
+            &qkv_bias,
+            &bias,
+            WindowGeometry {
+                batch,
+                height,
+                width,
+                channels,
+                heads,
+                window,
+                shift,
+            },
+        );
+        let out = Tensor::<4>::from_data(
+            TensorData::new(out, [batch, height, width, channels]),
+            &device,
+        );
+        Some(self.proj.forward(out))
     }
 
     /// The bias table rows of every token pair of a window of `tokens` tokens.

@@ -73,14 +73,29 @@ pub fn window_and_shift(
 impl SwinBlock {
     // [B, H, W, C] -> [B, H, W, C]
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let [batch, height, width, channels] = x.dims();
-        let device = x.device();
+        let [_, height, width, _] = x.dims();
         let (window, shift) = window_and_shift(height, width, self.window, self.shifted);
+        let shortcut = x.clone();
+        let normed = self.norm1.forward(x);
+        let h = match self.attention.forward_map_on_host(&normed, window, shift) {
+            Some(attended) => attended,
+            None => self.attention_on_tensors(normed, window, shift),
+        };
+        let x = shortcut + h;
+        let mlp = gelu_mlp(&self.fc1, &self.fc2, self.norm2.forward(x.clone()));
+        x + mlp
+    }
+}
+
+impl SwinBlock {
+    /// The attention sub-layer with burn's ops (training, other devices): pad, roll, windows,
+    /// attention with the shift mask, and back.
+    // [B, H, W, C] (normalised) -> [B, H, W, C]
+    fn attention_on_tensors(&self, mut h: Tensor<4>, window: usize, shift: usize) -> Tensor<4> {
+        let [batch, height, width, channels] = h.dims();
+        let device = h.device();
         let padded_h = height.div_ceil(window) * window;
         let padded_w = width.div_ceil(window) * window;
-
-        let shortcut = x.clone();
-        let mut h = self.norm1.forward(x);
         if padded_h != height || padded_w != width {
             h = pad_bottom_right(h, padded_h, padded_w);
         }
@@ -110,9 +125,7 @@ impl SwinBlock {
         if padded_h != height || padded_w != width {
             h = h.slice([0..batch, 0..height, 0..width, 0..channels]);
         }
-        let x = shortcut + h;
-        let mlp = gelu_mlp(&self.fc1, &self.fc2, self.norm2.forward(x.clone()));
-        x + mlp
+        h
     }
 }
 

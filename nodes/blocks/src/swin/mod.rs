@@ -4,6 +4,7 @@
 pub mod attention;
 pub mod backbone;
 pub mod block;
+pub mod host_attention;
 pub mod patch;
 pub mod window;
 

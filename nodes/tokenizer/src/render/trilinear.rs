@@ -12,6 +12,7 @@
 //! the field's size with the rows added in, and eight gathers would make eight such tables and
 //! add them up (at the tiny size, 4 M values each, every step).
 
+use bevworld_blocks::host::vectorized;
 use burn::prelude::*;
 use rayon::prelude::*;
 
@@ -133,37 +134,65 @@ pub fn sample_on_host(shape: &FieldShape, table: &[f32], points: &[[f32; 3]]) ->
     out.par_chunks_mut(POINTS_PER_TASK * channels)
         .zip(points.par_chunks(POINTS_PER_TASK))
         .for_each(|(out, points)| {
-            for (sample, p) in out.chunks_exact_mut(channels).zip(points) {
-                // Per axis: the two neighbours' row terms and weights, or none if outside.
-                let mut axes = [[(0i64, 0f32); 2]; 3];
-                let mut valid = [[false; 2]; 3];
-                for axis in 0..3 {
-                    let base = floor(p[axis]);
-                    let fraction = p[axis] - base;
-                    for (side, weight) in [1.0 - fraction, fraction].into_iter().enumerate() {
-                        let c = base + side as f32;
-                        if c >= 0.0 && c < sizes[axis] && !p[axis].is_nan() {
-                            axes[axis][side] = (terms[axis][c as usize], weight);
-                            valid[axis][side] = true;
-                        }
-                    }
-                }
-                for corner in 0..8 {
-                    let [sx, sy, sz] = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
-                    if !(valid[0][sx] && valid[1][sy] && valid[2][sz]) {
-                        continue;
-                    }
-                    let weight = axes[0][sx].1 * axes[1][sy].1 * axes[2][sz].1;
-                    if weight == 0.0 {
-                        continue;
-                    }
-                    let row = (axes[0][sx].0 + axes[1][sy].0 + axes[2][sz].0) as usize;
-                    let values = &table[row * channels..(row + 1) * channels];
-                    for (acc, value) in sample.iter_mut().zip(values) {
-                        *acc += value * weight;
+            vectorized(TrilinearKernel {
+                table,
+                terms: &terms,
+                sizes,
+                channels,
+                points,
+                out,
+            })
+        });
+    out
+}
+
+/// One chunk of points of `sample_on_host`, compiled for the CPU's vector width.
+struct TrilinearKernel<'a> {
+    table: &'a [f32],
+    terms: &'a [Vec<i64>; 3],
+    sizes: [f32; 3],
+    channels: usize,
+    points: &'a [[f32; 3]],
+    out: &'a mut [f32],
+}
+
+impl macerator::WithSimd for TrilinearKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: macerator::Simd>(self) {
+        let (table, terms, sizes, channels) = (self.table, self.terms, self.sizes, self.channels);
+        let (out, points) = (self.out, self.points);
+        for (sample, p) in out.chunks_exact_mut(channels).zip(points) {
+            // Per axis: the two neighbours' row terms and weights, or none if outside.
+            let mut axes = [[(0i64, 0f32); 2]; 3];
+            let mut valid = [[false; 2]; 3];
+            for axis in 0..3 {
+                let base = floor(p[axis]);
+                let fraction = p[axis] - base;
+                for (side, weight) in [1.0 - fraction, fraction].into_iter().enumerate() {
+                    let c = base + side as f32;
+                    if c >= 0.0 && c < sizes[axis] && !p[axis].is_nan() {
+                        axes[axis][side] = (terms[axis][c as usize], weight);
+                        valid[axis][side] = true;
                     }
                 }
             }
-        });
-    out
+            for corner in 0..8 {
+                let [sx, sy, sz] = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+                if !(valid[0][sx] && valid[1][sy] && valid[2][sz]) {
+                    continue;
+                }
+                let weight = axes[0][sx].1 * axes[1][sy].1 * axes[2][sz].1;
+                if weight == 0.0 {
+                    continue;
+                }
+                let row = (axes[0][sx].0 + axes[1][sy].0 + axes[2][sz].0) as usize;
+                let values = &table[row * channels..(row + 1) * channels];
+                for (acc, value) in sample.iter_mut().zip(values) {
+                    *acc += value * weight;
+                }
+            }
+        }
+    }
 }
