@@ -123,3 +123,17 @@ pub fn log_sigmoid(x: f32) -> f32 {
     let value = x.min(0.0) - log1p(exp(-x.abs()));
     if x.is_nan() { x } else { value }
 }
+
+/// `(log σ(x), log σ(−x))`, equal to two calls of `log_sigmoid` but with their shared term
+/// `ln(1 + e^{−|x|})` computed once: volume rendering needs both for every sample.
+#[inline(always)]
+pub fn log_sigmoid_pair(x: f32) -> (f32, f32) {
+    let shared = log1p(exp(-x.abs()));
+    let positive = x.min(0.0) - shared;
+    let negative = (-x).min(0.0) - shared;
+    if x.is_nan() {
+        (x, x)
+    } else {
+        (positive, negative)
+    }
+}

@@ -12,8 +12,9 @@ use crate::encoder::{PillarNet, PillarNetConfig, scatter_to_bev};
 use crate::latent::{LatentCompress, LatentCompressConfig};
 use crate::modality::Modality;
 use crate::render::{
-    VoxelField, expected_depth, expected_feature, render_weights, sample_trilinear,
+    AlphaHead, VoxelField, expected_depth, expected_feature, render_weights, sample_trilinear,
 };
+use bevworld_blocks::host::inference_values;
 use bevworld_blocks::seeded_init;
 use bevworld_blocks::swin::SwinBackbone;
 
@@ -224,6 +225,22 @@ impl Tokenizer {
     /// `render.escape_at_far`, else 0).
     pub fn escape_depth(&self) -> f32 {
         self.escape_depth
+    }
+
+    /// The alpha head's weights on the host, for the CPU's fused renderer (`render::march`);
+    /// `None` under autodiff or on another device, where rendering runs on tensors.
+    pub fn alpha_head_on_host(&self) -> Option<AlphaHead> {
+        let hidden = self.alpha_hidden.weight.val().dims()[1];
+        let bias = |linear: &Linear, size: usize| match &linear.bias {
+            Some(bias) => inference_values(&bias.val()),
+            None => Some(vec![0.0; size]),
+        };
+        Some(AlphaHead {
+            hidden_weight: inference_values(&self.alpha_hidden.weight.val())?,
+            hidden_bias: bias(&self.alpha_hidden, hidden)?,
+            out_weight: inference_values(&self.alpha_out.weight.val())?,
+            out_bias: bias(&self.alpha_out, 1)?.first().copied().unwrap_or(0.0),
+        })
     }
 
     /// Alpha logits `s` of voxel features (α = σ(s)): the density head every sample shares.

@@ -297,3 +297,58 @@ fn skip_options_name_every_bad_field() {
     }
     assert!(SkipOptions::default().problems().is_empty());
 }
+
+/// On the CPU outside autodiff, rendering runs as one fused host kernel (`render::march`);
+/// under autodiff it runs burn's ops. The same scene must render the same, dense and skipping.
+#[test]
+fn the_fused_cpu_march_equals_the_tensor_path() {
+    let host = Device::flex();
+    let config = tiny();
+    let model = config.init_seeded(3, &host);
+    let [c, z, y, x] = config.voxel_shape();
+    let voxels = random_normal(9, [1, c, z, y, x], 0.0, 1.0, &host);
+    let rays = fan(96);
+    // The tensor path checks its early stop every `segment` samples, the march every 16.
+    let options = SkipOptions {
+        alpha_threshold: 0.3,
+        stop_transmittance: 1e-2,
+        segment: 16,
+        ..SkipOptions::default()
+    };
+    let render = |device: &Device| {
+        let model = model.clone().to_device(device);
+        let field = VoxelField::from_grid(Tensor::from_data(voxels.clone().into_data(), device));
+        let scene = VoxelScene::new(&model, &config, field);
+        let grid = OccupancyGrid::build(&scene, &options);
+        (
+            scene.render_dense(&rays),
+            scene.render_skipping(&grid, &rays, &options),
+        )
+    };
+    let (march_dense, march_skipping) = render(&host);
+    let (tensor_dense, tensor_skipping) = render(&host.clone().autodiff());
+    for (march, tensors) in [
+        (&march_dense, &tensor_dense),
+        (&march_skipping, &tensor_skipping),
+    ] {
+        assert_eq!(march.samples_evaluated, tensors.samples_evaluated);
+        for r in 0..rays.len() {
+            assert!(
+                (march.depth[r] - tensors.depth[r]).abs() < 1e-4 * (1.0 + tensors.depth[r]),
+                "ray {r}: depth {} vs {}",
+                march.depth[r],
+                tensors.depth[r]
+            );
+            assert!((march.opacity[r] - tensors.opacity[r]).abs() < 1e-5);
+        }
+        for (a, b) in march.features.iter().zip(&tensors.features) {
+            assert!((a - b).abs() < 1e-4 * (1.0 + b.abs()), "{a} vs {b}");
+        }
+    }
+    assert!(
+        march_skipping.samples_evaluated < march_dense.samples_evaluated,
+        "the skipping march skipped nothing: {} of {}",
+        march_skipping.samples_evaluated,
+        march_dense.samples_evaluated
+    );
+}

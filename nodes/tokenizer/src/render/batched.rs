@@ -8,6 +8,7 @@ use crate::config::TokenizerConfig;
 use crate::frame_input::FrameRays;
 use crate::model::Tokenizer;
 use crate::render::field::VoxelField;
+use crate::render::march::{AlphaHead, March, Skipping};
 use crate::render::rays::{Rays, VoxelPlacement, sample_positions};
 
 /// What rendering a set of rays gives, on the host.
@@ -121,8 +122,32 @@ impl<'a> VoxelScene<'a> {
         ))
     }
 
-    /// Renders every ray densely, all samples, `chunk` rays at a time.
+    /// The fused CPU renderer of this scene (`render::march`), when the field and the model
+    /// are CPU inference tensors.
+    pub(crate) fn march<'s>(
+        &'s self,
+        head: &'s AlphaHead,
+        skipping: Option<Skipping<'s>>,
+    ) -> Option<March<'s>> {
+        Some(March {
+            shape: self.voxels.shape,
+            table: self.voxels.host_table()?,
+            head,
+            depths: &self.depths,
+            placement: self.placement,
+            escape_depth: self.model.escape_depth(),
+            skipping,
+        })
+    }
+
+    /// Renders every ray densely, all samples: on the CPU as one fused host kernel
+    /// (`render::march`), elsewhere through the model `chunk` rays at a time.
     pub fn render_dense(&self, rays: &Rays) -> RenderedRays {
+        if let Some(head) = self.model.alpha_head_on_host()
+            && let Some(march) = self.march(&head, None)
+        {
+            return march.render(rays);
+        }
         let device = self.voxels.device();
         let depths = &self.depths;
         let depth_row =

@@ -3,6 +3,7 @@
 
 pub mod batched;
 pub mod field;
+pub mod march;
 pub mod rays;
 pub mod skipping;
 pub mod trilinear;
@@ -10,6 +11,7 @@ pub mod volume;
 
 pub use batched::{RenderedRays, VoxelScene, camera_images};
 pub use field::{FieldShape, VoxelField};
+pub use march::{AlphaHead, March};
 pub use skipping::{OccupancyGrid, SkipOptions};
 pub use trilinear::sample_trilinear;
 pub use volume::{expected_depth, expected_feature, log_transmittance_after, render_weights};

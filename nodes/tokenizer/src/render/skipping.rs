@@ -7,7 +7,9 @@
 //!   coarse cell of its nearest voxel is occupied. Samples outside the grid read zero features,
 //!   so they are kept only if α of the zero feature exceeds the threshold.
 //! - **Early stop.** Kept samples go through the model in segments of `segment` per ray; after
-//!   each, a ray whose transmittance fell below `stop_transmittance` is finished.
+//!   each, a ray whose transmittance fell below `stop_transmittance` is finished. On the CPU
+//!   the fused renderer (`march`) evaluates them 16 at a time in one loop per ray, and checks
+//!   after each 16.
 //!
 //! What is skipped is not exactly zero: α of an interpolated feature is not the interpolation
 //! of α, and a stopped ray drops at most `stop_transmittance` of its weight. The error is
@@ -20,6 +22,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::render::batched::{RenderedRays, VoxelScene, host_vec};
+use crate::render::march::Skipping;
 use crate::render::rays::{Rays, VoxelPlacement};
 use crate::render::{log_transmittance_after, render_weights, sample_trilinear};
 
@@ -95,12 +98,12 @@ impl SkipOptions {
 /// Coarse occupancy of a voxel field.
 #[derive(Clone, Debug)]
 pub struct OccupancyGrid {
-    /// Coarse cells `[cz, cy, cx]`, row-major.
-    occupied: Vec<bool>,
-    coarse: [usize; 3],
+    /// Whether each fine voxel `[Z, Y, X]` (row-major) lies in an occupied coarse cell: the
+    /// coarse cells spread back over their voxels, so that a lookup is one index, with no
+    /// division by the cell size on the renderer's hottest path.
+    kept: Vec<bool>,
     /// Fine voxels `[Z, Y, X]`.
     voxels: [usize; 3],
-    cell: usize,
     /// Whether a sample outside the grid (zero feature) is dense enough to keep.
     outside_occupied: bool,
     /// Fraction of voxels with α above the threshold, before dilation.
@@ -176,28 +179,33 @@ impl OccupancyGrid {
                 }
             }
         }
+        let mut kept = Vec::with_capacity(z * y * x);
+        for iz in 0..z {
+            for iy in 0..y {
+                let coarse_row = ((iz / cell) * coarse[1] + iy / cell) * coarse[2];
+                kept.extend((0..x).map(|ix| occupied[coarse_row + ix / cell]));
+            }
+        }
         Self {
-            occupied,
-            coarse,
+            kept,
             voxels: [z, y, x],
-            cell,
             outside_occupied,
             occupied_fraction: count as f64 / (z * y * x).max(1) as f64,
         }
     }
 
     /// Whether a sample at `p` (voxel units, x y z) may have α above the threshold.
+    /// The nearest voxel is `⌊v + ½⌋` along each axis (`round` is a libm call on x86-64, and
+    /// only ties at exactly half a voxel differ).
+    #[inline(always)]
     pub fn keeps(&self, p: [f32; 3]) -> bool {
         let [z, y, x] = self.voxels;
         let nearest = |v: f32, n: usize| -> Option<usize> {
-            let r = v.round();
+            let r = (v + 0.5).floor();
             (r >= 0.0 && r < n as f32).then_some(r as usize)
         };
         match (nearest(p[0], x), nearest(p[1], y), nearest(p[2], z)) {
-            (Some(ix), Some(iy), Some(iz)) => {
-                let c = self.cell;
-                self.occupied[((iz / c) * self.coarse[1] + iy / c) * self.coarse[2] + ix / c]
-            }
+            (Some(ix), Some(iy), Some(iz)) => self.kept[(iz * y + iy) * x + ix],
             _ => self.outside_occupied,
         }
     }
@@ -302,6 +310,20 @@ impl VoxelScene<'_> {
             &self.placement,
             self.chunk,
         );
+        let stop = if options.stop_transmittance > 0.0 {
+            options.stop_transmittance.ln()
+        } else {
+            f32::NEG_INFINITY
+        };
+        if let Some(head) = model.alpha_head_on_host() {
+            let skipping = Skipping {
+                grid,
+                stop_log_transmittance: stop,
+            };
+            if let Some(march) = self.march(&head, Some(skipping)) {
+                return march.render(rays);
+            }
+        }
         let device = voxels.device();
         let channels = voxels.shape.channels;
         let r_count = rays.len();
@@ -316,11 +338,6 @@ impl VoxelScene<'_> {
         };
         let mut log_t = vec![0.0f32; r_count];
         let mut cursor = vec![0usize; r_count];
-        let stop = if options.stop_transmittance > 0.0 {
-            options.stop_transmittance.ln()
-        } else {
-            f32::NEG_INFINITY
-        };
         let segment = options.segment.max(1);
         let mut active: Vec<usize> = (0..r_count).filter(|&r| kept.count(r) > 0).collect();
         while !active.is_empty() {

@@ -164,35 +164,51 @@ impl macerator::WithSimd for TrilinearKernel<'_> {
         let (table, terms, sizes, channels) = (self.table, self.terms, self.sizes, self.channels);
         let (out, points) = (self.out, self.points);
         for (sample, p) in out.chunks_exact_mut(channels).zip(points) {
-            // Per axis: the two neighbours' row terms and weights, or none if outside.
-            let mut axes = [[(0i64, 0f32); 2]; 3];
-            let mut valid = [[false; 2]; 3];
-            for axis in 0..3 {
-                let base = floor(p[axis]);
-                let fraction = p[axis] - base;
-                for (side, weight) in [1.0 - fraction, fraction].into_iter().enumerate() {
-                    let c = base + side as f32;
-                    if c >= 0.0 && c < sizes[axis] && !p[axis].is_nan() {
-                        axes[axis][side] = (terms[axis][c as usize], weight);
-                        valid[axis][side] = true;
-                    }
-                }
+            sample_point(table, terms, sizes, channels, *p, sample);
+        }
+    }
+}
+
+/// Adds the trilinear sample of `table` at `p` (voxel units) to `sample` (`C_v` values): the
+/// 8 corners in `corners`' order, those outside the grid skipped. `terms` are
+/// `FieldShape::row_terms`, `sizes` the voxels along x, y, z. Inlined into every kernel that
+/// samples, so that it is compiled for that kernel's vector width.
+#[inline(always)]
+pub(crate) fn sample_point(
+    table: &[f32],
+    terms: &[Vec<i64>; 3],
+    sizes: [f32; 3],
+    channels: usize,
+    p: [f32; 3],
+    sample: &mut [f32],
+) {
+    // Per axis: the two neighbours' row terms and weights, or none if outside.
+    let mut axes = [[(0i64, 0f32); 2]; 3];
+    let mut valid = [[false; 2]; 3];
+    for axis in 0..3 {
+        let base = floor(p[axis]);
+        let fraction = p[axis] - base;
+        for (side, weight) in [1.0 - fraction, fraction].into_iter().enumerate() {
+            let c = base + side as f32;
+            if c >= 0.0 && c < sizes[axis] && !p[axis].is_nan() {
+                axes[axis][side] = (terms[axis][c as usize], weight);
+                valid[axis][side] = true;
             }
-            for corner in 0..8 {
-                let [sx, sy, sz] = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
-                if !(valid[0][sx] && valid[1][sy] && valid[2][sz]) {
-                    continue;
-                }
-                let weight = axes[0][sx].1 * axes[1][sy].1 * axes[2][sz].1;
-                if weight == 0.0 {
-                    continue;
-                }
-                let row = (axes[0][sx].0 + axes[1][sy].0 + axes[2][sz].0) as usize;
-                let values = &table[row * channels..(row + 1) * channels];
-                for (acc, value) in sample.iter_mut().zip(values) {
-                    *acc += value * weight;
-                }
-            }
+        }
+    }
+    for corner in 0..8 {
+        let [sx, sy, sz] = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+        if !(valid[0][sx] && valid[1][sy] && valid[2][sz]) {
+            continue;
+        }
+        let weight = axes[0][sx].1 * axes[1][sy].1 * axes[2][sz].1;
+        if weight == 0.0 {
+            continue;
+        }
+        let row = (axes[0][sx].0 + axes[1][sy].0 + axes[2][sz].0) as usize;
+        let values = &table[row * channels..(row + 1) * channels];
+        for (acc, value) in sample.iter_mut().zip(values) {
+            *acc += value * weight;
         }
     }
 }

@@ -5,7 +5,7 @@
 //! transmittance goes to a large negative number and `exp` gives exactly 0, never NaN. The
 //! weights sum to `1 − T_N ≤ 1`, the ray's opacity; the rest of the ray is transparent.
 
-use bevworld_blocks::fast_math::{exp, log_sigmoid};
+use bevworld_blocks::fast_math::{exp, log_sigmoid_pair};
 use bevworld_blocks::host::{into_inference_values, vectorized};
 use burn::prelude::*;
 use burn::tensor::activation;
@@ -62,8 +62,7 @@ impl macerator::WithSimd for WeightsKernel<'_> {
         let mut log_transparency = vec![0f32; self.samples];
         for ray in self.rays.chunks_exact_mut(self.samples) {
             for (s, t) in ray.iter_mut().zip(&mut log_transparency) {
-                *t = log_sigmoid(-*s);
-                *s = log_sigmoid(*s);
+                (*s, *t) = log_sigmoid_pair(*s);
             }
             let mut running = 0f32;
             for (s, t) in ray.iter_mut().zip(&log_transparency) {

@@ -1,0 +1,234 @@
+//! Rendering on the CPU as one fused kernel per chunk of rays: each ray's samples are placed,
+//! sampled trilinearly, run through the alpha head, weighted and summed in buffers the size of
+//! one ray, with nothing written to memory but the ray's results.
+//!
+//! The tensor path (`Tokenizer::render_rays`, kept for training and for other devices) writes
+//! every sample's features `[R·S, C_v]`, the head's hidden layer `[R·S, H]` and the weights
+//! `[R, S]` to memory and reads them back, op after op; at the tiny size that traffic, and the
+//! skinny matmuls of an 8 → 16 → 1 head, cost more than the arithmetic. Here a ray's features
+//! stay in a `[C_v, S]` buffer (channels as rows, so that the head's loops run along the
+//! samples and vectorise), and empty-space skipping and early stop are branches in the same
+//! loop rather than bookkeeping around batches of segments.
+//!
+//! The arithmetic is the tensor path's: `α = σ(s)` with `s = w₂ · relu(W₁ f + b₁) + b₂`,
+//! `w_i = exp(log σ(s_i) + Σ_{j<i} log σ(−s_j))` (log space, never a product of small
+//! numbers), depth `Σ w_i t_i`, feature `Σ w_i f_i`. Sums run in another order than burn's, so
+//! results agree to rounding (tested against the tensor path).
+
+use bevworld_blocks::fast_math::{exp, log_sigmoid_pair};
+use bevworld_blocks::host::vectorized;
+use rayon::prelude::*;
+
+use crate::render::batched::RenderedRays;
+use crate::render::field::FieldShape;
+use crate::render::rays::{Rays, VoxelPlacement};
+use crate::render::skipping::OccupancyGrid;
+use crate::render::trilinear::sample_point;
+
+/// The alpha head's weights on the host: `s = w₂ · relu(W₁ f + b₁) + b₂`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AlphaHead {
+    /// `W₁` as burn stores it, `[C_v, H]` row-major.
+    pub hidden_weight: Vec<f32>,
+    pub hidden_bias: Vec<f32>,
+    /// `w₂`, `[H]`.
+    pub out_weight: Vec<f32>,
+    pub out_bias: f32,
+}
+
+impl AlphaHead {
+    fn hidden(&self) -> usize {
+        self.hidden_bias.len()
+    }
+}
+
+/// What a march skips: nothing (dense), or samples in empty cells and samples after the ray's
+/// transmittance fell below `exp(stop_log_transmittance)`. The march evaluates a ray's kept
+/// samples `BLOCK` at a time and checks after each block; the tensor path checks after each of
+/// its `segment`-sample passes, so the two stop within a few samples of each other, and each
+/// drops at most `stop_transmittance` of the ray's weight.
+#[derive(Clone, Copy)]
+pub struct Skipping<'a> {
+    pub grid: &'a OccupancyGrid,
+    pub stop_log_transmittance: f32,
+}
+
+/// Samples evaluated together: one AVX-512 register of logits. Small enough that a stopped ray
+/// wastes little, large enough that the head's loops run full vectors.
+const BLOCK: usize = 16;
+
+/// Everything a march reads.
+pub struct March<'a> {
+    pub shape: FieldShape,
+    pub table: &'a [f32],
+    pub head: &'a AlphaHead,
+    pub depths: &'a [f32],
+    pub placement: VoxelPlacement,
+    /// The depth a ray's remaining transmittance adds (`Tokenizer::escape_depth`).
+    pub escape_depth: f32,
+    pub skipping: Option<Skipping<'a>>,
+}
+
+/// Rays per parallel task.
+const RAYS_PER_TASK: usize = 64;
+
+impl March<'_> {
+    /// Renders every ray. Opacity is `Σ w_i` for a dense march and `1 − T` for a skipping one,
+    /// as the two tensor paths define it.
+    pub fn render(&self, rays: &Rays) -> RenderedRays {
+        let channels = self.shape.channels;
+        let count = rays.len();
+        let mut out = RenderedRays {
+            features: vec![0.0; count * channels],
+            channels,
+            depth: vec![0.0; count],
+            opacity: vec![0.0; count],
+            samples_evaluated: 0,
+            samples_dense: (count * self.depths.len()) as u64,
+        };
+        let terms = self.shape.row_terms();
+        let evaluated: u64 = out
+            .features
+            .par_chunks_mut(RAYS_PER_TASK * channels.max(1))
+            .zip(out.depth.par_chunks_mut(RAYS_PER_TASK))
+            .zip(out.opacity.par_chunks_mut(RAYS_PER_TASK))
+            .zip(rays.origins.par_chunks(RAYS_PER_TASK))
+            .zip(rays.directions.par_chunks(RAYS_PER_TASK))
+            .map(|((((features, depth), opacity), origins), directions)| {
+                vectorized(RayKernel {
+                    march: self,
+                    terms: &terms,
+                    origins,
+                    directions,
+                    features,
+                    depth,
+                    opacity,
+                })
+            })
+            .sum();
+        out.samples_evaluated = evaluated;
+        out
+    }
+}
+
+struct RayKernel<'a> {
+    march: &'a March<'a>,
+    terms: &'a [Vec<i64>; 3],
+    origins: &'a [[f32; 3]],
+    directions: &'a [[f32; 3]],
+    features: &'a mut [f32],
+    depth: &'a mut [f32],
+    opacity: &'a mut [f32],
+}
+
+impl macerator::WithSimd for RayKernel<'_> {
+    /// Samples evaluated.
+    type Output = u64;
+
+    #[inline(always)]
+    fn with_simd<S: macerator::Simd>(self) -> u64 {
+        let m = self.march;
+        let (channels, hidden) = (m.shape.channels, m.head.hidden());
+        let [depth_voxels, height, width] = m.shape.voxels();
+        let sizes = [width as f32, height as f32, depth_voxels as f32];
+        let samples = m.depths.len();
+        let stop = m
+            .skipping
+            .map_or(f32::NEG_INFINITY, |s| s.stop_log_transmittance);
+        // One ray's kept samples: positions, depths, features [C_v, n], logits and weights.
+        let mut positions: Vec<[f32; 3]> = Vec::with_capacity(samples);
+        let mut kept_depths: Vec<f32> = Vec::with_capacity(samples);
+        let mut point = vec![0f32; channels];
+        // A block's features, one row of `BLOCK` samples per channel: fixed-size rows, so that
+        // every loop below is whole vectors with no tail.
+        let mut features = vec![[0f32; BLOCK]; channels];
+        let mut evaluated = 0u64;
+        for (ray, (o, d)) in self.origins.iter().zip(self.directions).enumerate() {
+            positions.clear();
+            kept_depths.clear();
+            for &t in m.depths {
+                let p = m
+                    .placement
+                    .to_voxel(std::array::from_fn(|axis| o[axis] + t * d[axis]));
+                if m.skipping.is_none_or(|s| s.grid.keeps(p)) {
+                    positions.push(p);
+                    kept_depths.push(t);
+                }
+            }
+            let ray_features = &mut self.features[ray * channels..(ray + 1) * channels];
+            let (mut depth, mut weight_sum, mut log_t) = (0f32, 0f32, 0f32);
+            for (block, block_depths) in positions.chunks(BLOCK).zip(kept_depths.chunks(BLOCK)) {
+                let n = block.len();
+                evaluated += n as u64;
+                for row in features.iter_mut() {
+                    *row = [0.0; BLOCK];
+                }
+                for (s, &p) in block.iter().enumerate() {
+                    point.iter_mut().for_each(|v| *v = 0.0);
+                    sample_point(m.table, self.terms, sizes, channels, p, &mut point);
+                    for (row, &v) in features.iter_mut().zip(&point) {
+                        row[s] = v;
+                    }
+                }
+                // The alpha head, vectorised along the samples.
+                let mut logits = [m.head.out_bias; BLOCK];
+                for k in 0..hidden {
+                    let mut h = [m.head.hidden_bias[k]; BLOCK];
+                    for (c, row) in features.iter().enumerate() {
+                        let w = m.head.hidden_weight[c * hidden + k];
+                        for (v, &f) in h.iter_mut().zip(row) {
+                            *v += f * w;
+                        }
+                    }
+                    let w = m.head.out_weight[k];
+                    for (l, &v) in logits.iter_mut().zip(&h) {
+                        *l += v.max(0.0) * w;
+                    }
+                }
+                let mut log_alpha = [0f32; BLOCK];
+                let mut log_transparency = [0f32; BLOCK];
+                for ((a, t), &s) in log_alpha.iter_mut().zip(&mut log_transparency).zip(&logits) {
+                    (*a, *t) = log_sigmoid_pair(s);
+                }
+                // Weights: the running log transmittance is the one sequential step; samples
+                // past `n` (a block's padding) weigh nothing and leave it unchanged.
+                let mut weights = [0f32; BLOCK];
+                for ((w, &a), &t) in weights
+                    .iter_mut()
+                    .zip(&log_alpha)
+                    .zip(&log_transparency)
+                    .take(n)
+                {
+                    *w = a + log_t;
+                    log_t += t;
+                }
+                for w in weights.iter_mut() {
+                    *w = exp(*w);
+                }
+                for w in weights.iter_mut().skip(n) {
+                    *w = 0.0;
+                }
+                for (&w, &t) in weights.iter().zip(block_depths) {
+                    depth += w * t;
+                    weight_sum += w;
+                }
+                for (acc, row) in ray_features.iter_mut().zip(&features) {
+                    for (&w, &f) in weights.iter().zip(row).take(n) {
+                        *acc += w * f;
+                    }
+                }
+                if log_t < stop {
+                    break;
+                }
+            }
+            let opacity = if m.skipping.is_some() {
+                1.0 - exp(log_t)
+            } else {
+                weight_sum
+            };
+            self.depth[ray] = depth + (1.0 - opacity) * m.escape_depth;
+            self.opacity[ray] = opacity;
+        }
+        evaluated
+    }
+}
