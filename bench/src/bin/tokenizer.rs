@@ -14,9 +14,8 @@
 //!   TOKENIZER_WEIGHTS=nodes/tokenizer/weights/tokenizer-tiny.bpk cargo run --release -p bevworld-bench --bin tokenizer
 
 use std::path::PathBuf;
-use std::time::Instant;
 
-use bevworld_bench::{markdown_table, percentile, psnr, write_results};
+use bevworld_bench::{markdown_table, psnr, time_runs, write_results};
 use bevworld_pillarize::{Limits, Pillarizer};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::flops::TokenizerFlops;
@@ -24,21 +23,6 @@ use bevworld_tokenizer::render::{OccupancyGrid, RenderedRays, SkipOptions, Voxel
 use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
 use burn::module::Module;
 use burn::prelude::*;
-
-/// Median and p99 milliseconds of `runs` calls after one warm-up; `f` must finish its work
-/// (read back a value) so that asynchronous backends are timed fully.
-fn time<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, f64, T) {
-    let mut last = f();
-    let mut times: Vec<f64> = (0..runs)
-        .map(|_| {
-            let started = Instant::now();
-            last = f();
-            started.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    (percentile(&times, 0.5), percentile(&times, 0.99), last)
-}
 
 fn main() {
     bevworld_device::keep_freed_memory();
@@ -75,7 +59,7 @@ fn main() {
     };
 
     let runs = 10;
-    let encoder = time(runs, || {
+    let encoder = time_runs(runs, || {
         let input = inputs
             .encoder_input(&frame, &meta_pillars, &device)
             .expect("encoder input");
@@ -84,7 +68,7 @@ fn main() {
         encoded.latent
     });
     let latent = encoder.2.clone();
-    let lift = time(runs, || {
+    let lift = time_runs(runs, || {
         let voxels = model.voxels(latent.clone());
         std::hint::black_box(read(voxels.table().clone().sum().reshape([1])));
         voxels
@@ -97,7 +81,7 @@ fn main() {
     let total_rays = camera_rays + lidar_rays;
     let scene = VoxelScene::new(&model, &config, voxels);
     let rgb_of = |camera: &RenderedRays| -> Vec<f32> { scene.camera_planes(camera, &rays) };
-    let dense = time(3, || {
+    let dense = time_runs(3, || {
         let camera = scene.render_dense(&rays.camera);
         let lidar = scene.render_dense(&rays.lidar);
         (rgb_of(&camera), camera, lidar)
@@ -112,7 +96,7 @@ fn main() {
                 segment,
                 ..defaults
             };
-            let run = time(3, || {
+            let run = time_runs(3, || {
                 let grid = OccupancyGrid::build(&scene, &options);
                 let camera = scene.render_skipping(&grid, &rays.camera, &options);
                 let lidar = scene.render_skipping(&grid, &rays.lidar, &options);

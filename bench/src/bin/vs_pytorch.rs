@@ -1,0 +1,552 @@
+//! Our tokenizer beside a PyTorch reference of it, on the same CPU: the half of the side-by-side
+//! benchmark that runs here. `bench/scripts/vs-pytorch.sh` runs both halves back to back.
+//!
+//! - `dump DIR`: loads the shipped tiny weights and the real nuScenes keyframe, writes what the
+//!   reference needs (the weights as safetensors, the encoder's input arrays, the rays and
+//!   sample depths, our outputs to check against as `.npy`, and `meta.json`), then times each
+//!   stage on 1 and on 2 threads and writes `ours.json`;
+//! - `report DIR`: reads `ours.json` and the reference's `torch.json` (when torch was there) and
+//!   writes `bench/results/vs-pytorch.md` and `.json`.
+//!
+//!   cargo run --release -p bevworld-bench --bin vs_pytorch -- dump out/vs-pytorch
+
+use std::path::Path;
+
+use bevworld_bench::{markdown_table, psnr, time_runs, write_results};
+use bevworld_blocks::init::random_normal;
+use bevworld_blocks::{sinusoidal_1d, sinusoidal_2d, timestep_embedding};
+use bevworld_pillarize::{Limits, Pillarizer};
+use bevworld_sensors::{Dataset, DatasetOptions};
+use bevworld_tokenizer::flops::TokenizerFlops;
+use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelScene};
+use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
+use bevworld_world_model::{ACTION_FEATURES, LoadedWorldModel};
+use burn::prelude::*;
+use burn::store::{ModuleSnapshot, SafetensorsStore};
+use serde_json::{Value, json};
+
+const WEIGHTS: &str = "nodes/tokenizer/weights/tokenizer-tiny.bpk";
+const CONFIG: &str = "configs/models/tokenizer-tiny.yaml";
+
+fn main() {
+    bevworld_device::keep_freed_memory();
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.as_slice() {
+        [mode, dir] if mode == "dump" => dump(Path::new(dir)),
+        [mode, dir] if mode == "report" => report(Path::new(dir)),
+        [mode, stage, runs] if mode == "profile" => profile(stage, runs.parse().unwrap_or(50)),
+        _ => {
+            eprintln!(
+                "usage: vs_pytorch dump DIR | vs_pytorch report DIR | \
+                 vs_pytorch profile encoder|lift|render|skipping RUNS (one stage in a loop, for perf)"
+            );
+            std::process::exit(2);
+        }
+    }
+}
+
+fn write_npy(dir: &Path, name: &str, shape: &[usize], values: &[f32]) {
+    let bytes = bevworld_sinks::npy::npy_f32(shape, values).expect("npy shape");
+    std::fs::write(dir.join(format!("{name}.npy")), bytes).expect("write npy");
+}
+
+fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().expect("f32 tensor")
+}
+
+/// Times `f` on a rayon pool of `threads` threads: every op of burn's CPU backend and every
+/// host loop of ours runs on the pool it is called from.
+fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("rayon pool")
+        .install(f)
+}
+
+fn dump(dir: &Path) {
+    std::fs::create_dir_all(dir).expect("output folder");
+    let device = Device::flex();
+    let root = bevworld_bench::manifest_dir().join("..");
+    let config = TokenizerConfig::from_yaml_file(&root.join(CONFIG)).expect("tiny config");
+    let model = load_weights(&config, &root.join(WEIGHTS), &device).expect("shipped weights");
+    let mut store = SafetensorsStore::from_file(dir.join("weights.safetensors")).overwrite(true);
+    model.save_into(&mut store).expect("weights as safetensors");
+
+    let frame = Dataset::open(
+        &bevworld_sensors::data_root().join("nuscenes-sample"),
+        &DatasetOptions::default(),
+    )
+    .expect("the nuScenes sample in $BEVWORLD_DATA (default ../shared/data)")
+    .read(0)
+    .expect("frame 0");
+    let mut points = Vec::new();
+    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
+    let limits = Limits::default();
+    let inputs = FrameInputs::new(&config);
+    let mut pillars = Pillarizer::new(inputs.pillar_grid(), limits).run(&points);
+    pillars.meta.frame_token = frame.frame_token.clone();
+    let arrays = inputs
+        .encoder_arrays(&frame, &pillars)
+        .expect("encoder input");
+    let rays = inputs.frame_rays(&frame).expect("rays");
+    let scene_depths = config.render.sample_depths();
+    let placement = config.voxel_placement();
+
+    // Inputs, as the reference reads them.
+    let [cameras, q, k] = arrays.reference_shape;
+    let slots = arrays.pillar_slots;
+    let count = arrays.pillar_cells.len();
+    write_npy(dir, "images", &arrays.image_shape, &arrays.images);
+    write_npy(
+        dir,
+        "pillar_points",
+        &[count, slots, 9],
+        &arrays.pillar_points,
+    );
+    write_npy(dir, "pillar_valid", &[count, slots], &arrays.pillar_valid);
+    let cells: Vec<f32> = arrays.pillar_cells.iter().map(|&c| c as f32).collect();
+    write_npy(dir, "pillar_cells", &[count], &cells);
+    write_npy(dir, "reference", &[cameras, q, k, 2], &arrays.reference);
+    write_npy(
+        dir,
+        "reference_valid",
+        &[cameras, q, k],
+        &arrays.reference_valid,
+    );
+    let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
+    let (nc, nl) = (rays.camera.len(), rays.lidar.len());
+    write_npy(dir, "camera_origins", &[nc, 3], &flat(&rays.camera.origins));
+    write_npy(
+        dir,
+        "camera_directions",
+        &[nc, 3],
+        &flat(&rays.camera.directions),
+    );
+    write_npy(dir, "lidar_origins", &[nl, 3], &flat(&rays.lidar.origins));
+    write_npy(
+        dir,
+        "lidar_directions",
+        &[nl, 3],
+        &flat(&rays.lidar.directions),
+    );
+    write_npy(dir, "depths", &[scene_depths.len()], &scene_depths);
+
+    // Our outputs, for the reference to check itself against before it times anything.
+    let encoded = model.encode(arrays.to_input(&device));
+    let latent = encoded.latent.clone();
+    write_npy(dir, "latent", &latent.dims(), &host(latent.clone()));
+    let voxels = model.voxels(latent.clone());
+    let table = voxels.table().clone();
+    write_npy(dir, "voxel_table", &table.dims(), &host(table));
+    let scene = VoxelScene::new(&model, &config, voxels.clone());
+    let camera = scene.render_dense(&rays.camera);
+    let lidar = scene.render_dense(&rays.lidar);
+    let rgb = scene.camera_planes(&camera, &rays);
+    let [h, w] = config.image_size;
+    write_npy(dir, "rgb", &[rays.cameras, 3, h, w], &rgb);
+    write_npy(dir, "lidar_depth", &[nl], &lidar.depth);
+    write_npy(dir, "camera_opacity", &[nc], &camera.opacity);
+
+    let flops = TokenizerFlops::of(&config, pillars.len(), limits.max_points_per_pillar);
+    let dense_samples = (nc + nl) * scene_depths.len();
+    std::fs::write(
+        dir.join("meta.json"),
+        serde_json::to_string_pretty(&json!({
+            "config": CONFIG,
+            "model": serde_json::to_value(&config).expect("config as json"),
+            "weights": WEIGHTS,
+            "frame": frame.frame_token,
+            "pillars": count,
+            "camera_rays": nc,
+            "lidar_rays": nl,
+            "ray_grid": [rays.cameras, rays.rows, rays.columns],
+            "samples": scene_depths.len(),
+            "chunk": scene.chunk,
+            "voxel_min": placement.min,
+            "voxel_size": placement.voxel_size,
+            "voxels_zyx": voxels.shape.voxels(),
+            "flops": {
+                "encoder": flops.encoder(),
+                "lift": flops.lift,
+                "render_dense": flops.render(dense_samples as u64, rays.cameras),
+            },
+        }))
+        .expect("json"),
+    )
+    .expect("meta.json");
+
+    // Timings: the same stages, from the same arrays, on 1 and on 2 threads.
+    let runs = 10;
+    let read = |t: Tensor<4>| host(t.sum().reshape([1]))[0];
+    let mut timings = serde_json::Map::new();
+    for threads in [1usize, 2] {
+        let stage = on_threads(threads, || {
+            let prepare = time_runs(runs, || {
+                inputs
+                    .encoder_arrays(&frame, &pillars)
+                    .expect("encoder input")
+            });
+            let encoder = time_runs(runs, || {
+                let latent = model.encode(arrays.to_input(&device)).latent;
+                std::hint::black_box(read(latent))
+            });
+            let lift = time_runs(runs, || {
+                let field = model.voxels(latent.clone());
+                std::hint::black_box(host(field.table().clone().sum().reshape([1]))[0])
+            });
+            let dense = time_runs(5, || {
+                let camera = scene.render_dense(&rays.camera);
+                let lidar = scene.render_dense(&rays.lidar);
+                (scene.camera_planes(&camera, &rays), lidar.depth)
+            });
+            let options = SkipOptions::default();
+            let skipping = time_runs(5, || {
+                let grid = OccupancyGrid::build(&scene, &options);
+                let camera = scene.render_skipping(&grid, &rays.camera, &options);
+                let lidar = scene.render_skipping(&grid, &rays.lidar, &options);
+                (
+                    scene.camera_planes(&camera, &rays),
+                    lidar.depth,
+                    camera.samples_evaluated + lidar.samples_evaluated,
+                )
+            });
+            let matmul = bevworld_device::matmul_gflops(&device, 512, 5).unwrap_or(f64::NAN);
+            let (dense_rgb, dense_depth) = &dense.2;
+            let (skip_rgb, skip_depth, evaluated) = &skipping.2;
+            let depth_mae = dense_depth
+                .iter()
+                .zip(skip_depth)
+                .map(|(a, b)| f64::from((a - b).abs()))
+                .sum::<f64>()
+                / nl.max(1) as f64;
+            json!({
+                "inputs_ms": prepare.0,
+                "encoder_ms": encoder.0,
+                "lift_ms": lift.0,
+                "render_dense_ms": dense.0,
+                "render_skipping_ms": skipping.0,
+                "skipping_sample_fraction": *evaluated as f64 / dense_samples as f64,
+                "skipping_depth_mae_m": depth_mae,
+                "skipping_colour_psnr_db": psnr(dense_rgb, skip_rgb),
+                "matmul_gflops": matmul,
+            })
+        });
+        println!("ours, {threads} thread(s): {stage}");
+        timings.insert(threads.to_string(), stage);
+    }
+    let world_model = dump_world_model(dir, &root, &device);
+    timings.insert("world_model".into(), world_model);
+    std::fs::write(
+        dir.join("ours.json"),
+        serde_json::to_string_pretty(&Value::Object(timings)).expect("json"),
+    )
+    .expect("ours.json");
+    println!("wrote {}", dir.display());
+}
+
+/// One stage run `runs` times on the default pool, nothing written: for `perf record`.
+fn profile(stage: &str, runs: usize) {
+    let device = Device::flex();
+    let root = bevworld_bench::manifest_dir().join("..");
+    let config = TokenizerConfig::from_yaml_file(&root.join(CONFIG)).expect("tiny config");
+    let model = load_weights(&config, &root.join(WEIGHTS), &device).expect("shipped weights");
+    let frame = Dataset::open(
+        &bevworld_sensors::data_root().join("nuscenes-sample"),
+        &DatasetOptions::default(),
+    )
+    .expect("the nuScenes sample")
+    .read(0)
+    .expect("frame 0");
+    let mut points = Vec::new();
+    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
+    let inputs = FrameInputs::new(&config);
+    let mut pillars = Pillarizer::new(inputs.pillar_grid(), Limits::default()).run(&points);
+    pillars.meta.frame_token = frame.frame_token.clone();
+    let arrays = inputs.encoder_arrays(&frame, &pillars).expect("inputs");
+    let latent = model.encode(arrays.to_input(&device)).latent;
+    let voxels = model.voxels(latent.clone());
+    let rays = inputs.frame_rays(&frame).expect("rays");
+    let scene = VoxelScene::new(&model, &config, voxels);
+    let started = std::time::Instant::now();
+    for _ in 0..runs {
+        match stage {
+            "encoder" => {
+                std::hint::black_box(host(model.encode(arrays.to_input(&device)).latent));
+            }
+            "lift" => {
+                std::hint::black_box(host(model.voxels(latent.clone()).table().clone()));
+            }
+            "skipping" => {
+                let options = SkipOptions::default();
+                let built = std::time::Instant::now();
+                let grid = OccupancyGrid::build(&scene, &options);
+                eprintln!(
+                    "occupancy grid: {:.1} ms",
+                    built.elapsed().as_secs_f64() * 1e3
+                );
+                let camera = scene.render_skipping(&grid, &rays.camera, &options);
+                std::hint::black_box(scene.camera_planes(&camera, &rays));
+                std::hint::black_box(scene.render_skipping(&grid, &rays.lidar, &options));
+            }
+            _ => {
+                let camera = scene.render_dense(&rays.camera);
+                std::hint::black_box(scene.camera_planes(&camera, &rays));
+                std::hint::black_box(scene.render_dense(&rays.lidar));
+            }
+        }
+    }
+    println!(
+        "{stage}: {:.1} ms per run",
+        started.elapsed().as_secs_f64() * 1e3 / runs as f64
+    );
+}
+
+/// The world model's half: its weights, one network pass's inputs (3 condition frames and 6
+/// future frames at the first DDIM step of the shipped sampler) and output, and that pass's
+/// time on 1 and 2 threads.
+fn dump_world_model(dir: &Path, root: &Path, device: &Device) -> Value {
+    let loaded = LoadedWorldModel::shipped_tiny(root, device.clone()).expect("shipped world model");
+    let (model, config) = (&loaded.weights.model, &loaded.config);
+    let mut store =
+        SafetensorsStore::from_file(dir.join("world_model.safetensors")).overwrite(true);
+    model
+        .save_into(&mut store)
+        .expect("world model weights as safetensors");
+    let (context, future) = (config.context_frames, config.future_frames);
+    let frames = context + future;
+    let [height, width] = config.latent_size;
+    let channels = config.latent_channels;
+    // Standardised latents are about N(0, 1); the actions are normalised features.
+    let latents = random_normal(5, [1, frames, channels, height, width], 0.0, 1.0, device);
+    let actions = random_normal(6, [1, frames, ACTION_FEATURES], 0.0, 1.0, device);
+    let top = (config.diffusion.steps - 1) as f32;
+    let levels: Vec<f32> = (0..frames)
+        .map(|f| if f < context { 0.0 } else { top })
+        .collect();
+    let patch = config.patch;
+    let (rows, columns) = (height / patch, width / patch);
+    let write = |name: &str, t: Tensor<2>| write_npy(dir, name, &t.dims(), &host(t));
+    write(
+        "wm_time_embedding",
+        timestep_embedding(&levels, config.condition_half, device),
+    );
+    write(
+        "wm_space",
+        sinusoidal_2d(rows, columns, config.width, device),
+    );
+    write("wm_time", sinusoidal_1d(frames, config.width, device));
+    write_npy(dir, "wm_latents", &latents.dims(), &host(latents.clone()));
+    write_npy(dir, "wm_actions", &actions.dims(), &host(actions.clone()));
+    let output = model.forward(latents.clone(), actions.clone(), &levels, future);
+    write_npy(dir, "wm_output", &output.dims(), &host(output));
+    std::fs::write(
+        dir.join("world_model.json"),
+        serde_json::to_string_pretty(&json!({
+            "config": serde_json::to_value(config).expect("config as json"),
+            "context": context,
+            "future": future,
+        }))
+        .expect("json"),
+    )
+    .expect("world_model.json");
+    let mut times = serde_json::Map::new();
+    for threads in [1usize, 2] {
+        let ms = on_threads(threads, || {
+            time_runs(5, || {
+                let out = model.forward(latents.clone(), actions.clone(), &levels, future);
+                std::hint::black_box(host(out.sum().reshape([1]))[0])
+            })
+            .0
+        });
+        println!("ours, world model pass, {threads} thread(s): {ms:.1} ms");
+        times.insert(threads.to_string(), json!(ms));
+    }
+    Value::Object(times)
+}
+
+fn read_json(path: &Path) -> Option<Value> {
+    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
+}
+
+fn report(dir: &Path) {
+    let ours = read_json(&dir.join("ours.json")).expect("ours.json: run `vs_pytorch dump` first");
+    let meta = read_json(&dir.join("meta.json")).expect("meta.json");
+    let torch = read_json(&dir.join("torch.json"));
+    let get = |v: &Value, path: &[&str]| -> Option<f64> {
+        path.iter().try_fold(v, |v, key| v.get(*key))?.as_f64()
+    };
+    let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.1}"));
+    let stages = [
+        ("encoder (from its input arrays)", "encoder", Some("encoder")),
+        ("voxel lift", "lift", Some("lift")),
+        (
+            "render, dense, with the RGB upsampler",
+            "render_dense",
+            Some("render_dense"),
+        ),
+        ("render, skipping", "render_skipping", None),
+        (
+            "world model, one network pass (3 + 6 frames)",
+            "world_model",
+            None,
+        ),
+    ];
+    let mut rows = Vec::new();
+    let mut goals = Vec::new();
+    for (label, key, flop_key) in stages {
+        let field = format!("{key}_ms");
+        // Our world model's times sit under their own key, by thread count.
+        let (ours1, ours2) = if key == "world_model" {
+            (
+                get(&ours, &["world_model", "1"]),
+                get(&ours, &["world_model", "2"]),
+            )
+        } else {
+            (get(&ours, &["1", &field]), get(&ours, &["2", &field]))
+        };
+        let torch = torch.as_ref();
+        let eager1 = torch.and_then(|t| get(t, &["eager", "1", &field]));
+        let eager2 = torch.and_then(|t| get(t, &["eager", "2", &field]));
+        let compiled = torch.and_then(|t| get(t, &["compiled", "2", &field]));
+        let ratio = |theirs: Option<f64>| match (theirs, ours2) {
+            (Some(t), Some(o)) => format!("{:.2}×", t / o),
+            _ => "—".into(),
+        };
+        let flop = flop_key.and_then(|f| get(&meta, &["flops", f]));
+        let rate = |t: Option<f64>| match (flop, t) {
+            (Some(f), Some(t)) => format!("{:.1}", f / (t * 1e-3) / 1e9),
+            _ => "—".into(),
+        };
+        rows.push(vec![
+            label.to_string(),
+            ms(ours1),
+            ms(ours2),
+            ms(eager1),
+            ms(eager2),
+            ms(compiled),
+            ratio(eager2),
+            ratio(compiled),
+            flop.map_or("—".into(), |f| format!("{:.3}", f / 1e9)),
+            format!("{} / {}", rate(ours2), rate(eager2)),
+        ]);
+        goals.push((key, ours2, eager2, compiled));
+    }
+    let table = markdown_table(
+        &[
+            "stage",
+            "ours, 1 thread (ms)",
+            "ours, 2 threads",
+            "PyTorch eager, 1 thread",
+            "PyTorch eager, 2 threads",
+            "torch.compile, 2 threads",
+            "eager 2t / ours 2t",
+            "compile / ours 2t",
+            "GFLOP",
+            "GFLOP/s ours / eager (2 threads)",
+        ],
+        &rows,
+    );
+    let matmul = format!(
+        "Matmul rate at 512², same run: ours {} / {} GFLOP/s on 1 / 2 threads; PyTorch {} / {}.",
+        ms(get(&ours, &["1", "matmul_gflops"])),
+        ms(get(&ours, &["2", "matmul_gflops"])),
+        ms(torch
+            .as_ref()
+            .and_then(|t| get(t, &["eager", "1", "matmul_gflops"]))),
+        ms(torch
+            .as_ref()
+            .and_then(|t| get(t, &["eager", "2", "matmul_gflops"]))),
+    );
+    let agreement = match &torch {
+        Some(t) => format!(
+            "The reference checked itself against our outputs before timing: latent max |Δ| {}, \
+             voxel table max |Δ| {}, RGB max |Δ| {} (8-bit levels differing: {}), LiDAR depth \
+             max |Δ| {} m, world model output max |Δ| {}.",
+            t["agreement"]["latent_max_abs"],
+            t["agreement"]["voxel_table_max_abs"],
+            t["agreement"]["rgb_max_abs"],
+            t["agreement"]["rgb_8bit_levels_differing"],
+            t["agreement"]["lidar_depth_max_abs_m"],
+            t["agreement"]["world_model_max_abs"],
+        ),
+        None => "PyTorch was not found, so only our side ran: `bench/scripts/vs-pytorch.sh` \
+                 says how to install it."
+            .into(),
+    };
+    let setup = match &torch {
+        Some(t) => format!(
+            "PyTorch {} ({}), allocator: {}. Ours: mimalloc (the bench's global allocator).",
+            t["torch_version"].as_str().unwrap_or("?"),
+            t["build"].as_str().unwrap_or("?"),
+            t["allocator"].as_str().unwrap_or("?"),
+        ),
+        None => String::new(),
+    };
+    let skip_fraction = get(&ours, &["2", "skipping_sample_fraction"]).unwrap_or(f64::NAN);
+    let dense2 = get(&ours, &["2", "render_dense_ms"]).unwrap_or(f64::NAN);
+    let skip2 = get(&ours, &["2", "render_skipping_ms"]).unwrap_or(f64::NAN);
+    let enc1 = get(&ours, &["1", "encoder_ms"]).unwrap_or(f64::NAN);
+    let enc2 = get(&ours, &["2", "encoder_ms"]).unwrap_or(f64::NAN);
+    let mut goal_lines = Vec::new();
+    for (key, ours2, eager2, compiled) in &goals {
+        if let (Some(o), Some(e)) = (ours2, eager2) {
+            goal_lines.push(format!(
+                "- {key}: {} eager on 2 threads ({o:.1} ms against {e:.1} ms){}",
+                if o <= e {
+                    "at least as fast as"
+                } else {
+                    "SLOWER than"
+                },
+                match compiled {
+                    Some(c) if *key == "lift" || *key == "render_dense" => format!(
+                        "; {} half of torch.compile's {c:.1} ms",
+                        if *o <= c / 2.0 {
+                            "within"
+                        } else {
+                            "NOT within"
+                        }
+                    ),
+                    _ => String::new(),
+                }
+            ));
+        }
+    }
+    goal_lines.push(format!(
+        "- skipping against dense: {:.2}× faster ({dense2:.1} ms against {skip2:.1} ms, {:.0}% \
+         of the samples evaluated); the goal is 3×",
+        dense2 / skip2,
+        100.0 * skip_fraction
+    ));
+    goal_lines.push(format!(
+        "- both cores in inference: the encoder takes {enc1:.1} ms on 1 thread and {enc2:.1} ms \
+         on 2 ({:.2}× speed-up)",
+        enc1 / enc2
+    ));
+    let notes = format!(
+        "{matmul}\n\n{agreement}\n\n{setup}\n\nInput: the real nuScenes keyframe ({} pillars, {} \
+         camera rays, {} LiDAR rays, {} samples each, rendered in chunks of {} rays on both \
+         sides), the shipped weights `{}`. Times are medians after a warm-up. The encoder starts \
+         from the same arrays on both sides (resized images, padded pillars, projected reference \
+         points); preparing them from the decoded frame is ours alone and takes {} / {} ms on 1 \
+         / 2 threads. FLOPs are analytic (`nodes/tokenizer/src/flops.rs`).\n\n## Goals\n\n{}\n",
+        meta["pillars"],
+        meta["camera_rays"],
+        meta["lidar_rays"],
+        meta["samples"],
+        meta["chunk"],
+        meta["weights"].as_str().unwrap_or(WEIGHTS),
+        ms(get(&ours, &["1", "inputs_ms"])),
+        ms(get(&ours, &["2", "inputs_ms"])),
+        goal_lines.join("\n"),
+    );
+    print!("{table}\n{notes}");
+    write_results(
+        "vs-pytorch",
+        "The tiny tokenizer beside a PyTorch reference of it, same CPU, same inputs",
+        "bench/scripts/vs-pytorch.sh",
+        &table,
+        &notes,
+        &json!({"ours": ours, "torch": torch, "meta": meta}),
+    );
+}
