@@ -38,7 +38,7 @@ fn main() {
         _ => {
             eprintln!(
                 "usage: vs_pytorch dump DIR | vs_pytorch report DIR | \
-                 vs_pytorch profile encoder|lift|render|skipping RUNS (one stage in a loop, for perf)"
+                 vs_pytorch profile encoder|lift|render|skipping|world_model RUNS (one stage in a loop, for perf)"
             );
             std::process::exit(2);
         }
@@ -162,6 +162,7 @@ fn dump(dir: &Path) {
             "lidar_rays": nl,
             "ray_grid": [rays.cameras, rays.rows, rays.columns],
             "samples": scene_depths.len(),
+            "rgb_values": rgb.len(),
             "chunk": scene.chunk,
             "voxel_min": placement.min,
             "voxel_size": placement.voxel_size,
@@ -249,6 +250,48 @@ fn dump(dir: &Path) {
 fn profile(stage: &str, runs: usize) {
     let device = Device::flex();
     let root = bevworld_bench::manifest_dir().join("..");
+    if stage == "softmax" {
+        let mut values: Vec<f32> = (0..(1 << 23)).map(|i| (i % 1000) as f32 / 100.0).collect();
+        let started = std::time::Instant::now();
+        for _ in 0..runs {
+            bevworld_blocks::activation::softmax_rows_in_place(&mut values, 256);
+        }
+        println!(
+            "softmax: {:.2} ns per value",
+            started.elapsed().as_secs_f64() * 1e9 / (runs * values.len()) as f64
+        );
+        return;
+    }
+    if stage == "world_model" {
+        let loaded = LoadedWorldModel::shipped_tiny(&root, device.clone()).expect("world model");
+        let config = &loaded.config;
+        let frames = config.context_frames + config.future_frames;
+        let [h, w] = config.latent_size;
+        let latents = random_normal(
+            5,
+            [1, frames, config.latent_channels, h, w],
+            0.0,
+            1.0,
+            &device,
+        );
+        let actions = random_normal(6, [1, frames, ACTION_FEATURES], 0.0, 1.0, &device);
+        let levels = vec![0.0; frames];
+        let started = std::time::Instant::now();
+        for _ in 0..runs {
+            let out = loaded.weights.model.forward(
+                latents.clone(),
+                actions.clone(),
+                &levels,
+                config.future_frames,
+            );
+            std::hint::black_box(host(out));
+        }
+        println!(
+            "world model: {:.1} ms per run",
+            started.elapsed().as_secs_f64() * 1e3 / runs as f64
+        );
+        return;
+    }
     let config = TokenizerConfig::from_yaml_file(&root.join(CONFIG)).expect("tiny config");
     let model = load_weights(&config, &root.join(WEIGHTS), &device).expect("shipped weights");
     let frame = Dataset::open(
@@ -369,16 +412,64 @@ fn read_json(path: &Path) -> Option<Value> {
     serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
 }
 
+/// Every `<stem>*.json` of `dir`: one per round of the script.
+fn rounds(dir: &Path, stem: &str) -> Vec<Value> {
+    let mut paths: Vec<_> = std::fs::read_dir(dir)
+        .map(|entries| {
+            entries
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| {
+                    p.file_name()
+                        .and_then(|n| n.to_str())
+                        .is_some_and(|n| n.starts_with(stem) && n.ends_with(".json"))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    paths.sort();
+    paths.iter().filter_map(|p| read_json(p)).collect()
+}
+
+/// The rounds merged: each number the median of its values over the rounds, anything else
+/// the first round's.
+fn median_of_rounds(rounds: &[Value]) -> Option<Value> {
+    let first = rounds.first()?;
+    Some(match first {
+        Value::Number(_) => {
+            let mut values: Vec<f64> = rounds.iter().filter_map(Value::as_f64).collect();
+            values.sort_by(f64::total_cmp);
+            json!(bevworld_bench::percentile(&values, 0.5))
+        }
+        Value::Object(fields) => Value::Object(
+            fields
+                .keys()
+                .filter_map(|key| {
+                    let column: Vec<Value> =
+                        rounds.iter().filter_map(|r| r.get(key).cloned()).collect();
+                    median_of_rounds(&column).map(|v| (key.clone(), v))
+                })
+                .collect(),
+        ),
+        other => other.clone(),
+    })
+}
+
 fn report(dir: &Path) {
-    let ours = read_json(&dir.join("ours.json")).expect("ours.json: run `vs_pytorch dump` first");
+    let our_rounds = rounds(dir, "ours");
+    let torch_rounds = rounds(dir, "torch");
+    let ours = median_of_rounds(&our_rounds).expect("ours*.json: run `vs_pytorch dump` first");
     let meta = read_json(&dir.join("meta.json")).expect("meta.json");
-    let torch = read_json(&dir.join("torch.json"));
+    let torch = median_of_rounds(&torch_rounds);
     let get = |v: &Value, path: &[&str]| -> Option<f64> {
         path.iter().try_fold(v, |v, key| v.get(*key))?.as_f64()
     };
     let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.1}"));
     let stages = [
-        ("encoder (from its input arrays)", "encoder", Some("encoder")),
+        (
+            "encoder (from its input arrays)",
+            "encoder",
+            Some("encoder"),
+        ),
         ("voxel lift", "lift", Some("lift")),
         (
             "render, dense, with the RGB upsampler",
@@ -459,17 +550,22 @@ fn report(dir: &Path) {
             .and_then(|t| get(t, &["eager", "2", "matmul_gflops"]))),
     );
     let agreement = match &torch {
-        Some(t) => format!(
-            "The reference checked itself against our outputs before timing: latent max |Δ| {}, \
-             voxel table max |Δ| {}, RGB max |Δ| {} (8-bit levels differing: {}), LiDAR depth \
-             max |Δ| {} m, world model output max |Δ| {}.",
-            t["agreement"]["latent_max_abs"],
-            t["agreement"]["voxel_table_max_abs"],
-            t["agreement"]["rgb_max_abs"],
-            t["agreement"]["rgb_8bit_levels_differing"],
-            t["agreement"]["lidar_depth_max_abs_m"],
-            t["agreement"]["world_model_max_abs"],
-        ),
+        Some(t) => {
+            let a = |key: &str| t["agreement"][key].as_f64().unwrap_or(f64::NAN);
+            format!(
+                "The reference checked itself against our outputs before timing: latent max \
+                 |Δ| {:.1e}, voxel table max |Δ| {:.1e}, RGB max |Δ| {:.1e} ({:.0} 8-bit \
+                 levels differ of {}), LiDAR depth max |Δ| {:.1e} m, world model output max \
+                 |Δ| {:.1e}.",
+                a("latent_max_abs"),
+                a("voxel_table_max_abs"),
+                a("rgb_max_abs"),
+                a("rgb_8bit_levels_differing"),
+                meta["rgb_values"],
+                a("lidar_depth_max_abs_m"),
+                a("world_model_max_abs"),
+            )
+        }
         None => "PyTorch was not found, so only our side ran: `bench/scripts/vs-pytorch.sh` \
                  says how to install it."
             .into(),
@@ -518,6 +614,81 @@ fn report(dir: &Path) {
         dense2 / skip2,
         100.0 * skip_fraction
     ));
+    let one_thread = |key: &str| -> String {
+        let field = format!("{key}_ms");
+        match (
+            get(&ours, &["1", &field]),
+            torch.as_ref().and_then(|t| get(t, &["eager", "1", &field])),
+        ) {
+            (Some(o), Some(e)) => format!("{:.2}×", e / o),
+            _ => "—".into(),
+        }
+    };
+    goal_lines.push(format!(
+        "  - how firm: PyTorch's 2-thread times move more between runs than ours on this \
+         2-core VM (its encoder took 24–33 ms and its lift 26–37 ms over four runs of this page \
+         on one day), so a 2-thread margin under ~25% is within the noise. On 1 thread, where \
+         both are steadier, eager's time over ours is {} for the encoder and {} for the lift.",
+        one_thread("encoder"),
+        one_thread("lift"),
+    ));
+    goal_lines.push(
+        "  - the lift against torch.compile: missed. The lift is Swin blocks at 16–32 channels; \
+         compile fuses each block's norms, GELU and residuals into few kernels, while ours still \
+         runs them as separate burn ops around our attention kernel."
+            .into(),
+    );
+    goal_lines.push(
+        "  - the world model against eager: its spatial attention writes `[frames·heads, 256, \
+         256]` logits (9 MB a block) and reads them back for the softmax and the product with \
+         V; PyTorch's `scaled_dot_product_attention` streams them through a flash kernel. A \
+         fused attention kernel of our own for the world model is the next lever."
+            .into(),
+    );
+    let results = bevworld_bench::results_dir();
+    let occupied = read_json(&results.join("tokenizer.json"))
+        .and_then(|t| t["occupied_fraction"].as_f64())
+        .unwrap_or(f64::NAN);
+    goal_lines.push(format!(
+        "  - why: the shipped field has α > 0.001 in {:.0}% of its voxels, so there is little \
+         empty space to skip; what is skipped is mostly early stop and rays leaving the grid. \
+         The fused renderer made a sample cheap, so skipping's fixed costs (the occupancy grid, \
+         a lookup per sample) now weigh as much as the samples it saves.",
+        100.0 * occupied
+    ));
+    let train = read_json(&results.join("train_step.json"));
+    let step_s = train.as_ref().and_then(|t| {
+        t["steps"]
+            .as_array()?
+            .iter()
+            .find(|s| s["threads"].as_u64() == Some(2))?["seconds_per_step"]
+            .as_f64()
+    });
+    let backward_share = train.as_ref().and_then(|t| {
+        let phases = t["phases_ms"].as_array()?;
+        let total: f64 = phases.iter().filter_map(|p| p["ms"].as_f64()).sum();
+        let backward = phases
+            .iter()
+            .find(|p| p["phase"].as_str() == Some("backward"))?["ms"]
+            .as_f64()?;
+        Some(backward / total)
+    });
+    goal_lines.push(format!(
+        "- the tokenizer's training step: {} s per step of 2 frames on 2 threads \
+         ([train_step.md](train_step.md)) against the goal of 0.415 s (half of 0.83 s): missed. \
+         Training runs under autodiff, where none of the host kernels above apply, and the \
+         backward pass, burn's own ops, is {:.0}% of a frame's step.",
+        step_s.map_or("—".into(), |s| format!("{s:.3}")),
+        100.0 * backward_share.unwrap_or(f64::NAN)
+    ));
+    goal_lines.push(
+        "- retraining the tiny tokenizer with the time saved: not done. The world model is \
+         trained on this tokenizer's latents and refuses latents of other weights (its weights \
+         record the tokenizer's digest); a new tokenizer means a new latent cache and the world \
+         model's three stages again. The shipped tokenizer stays, with its figures in \
+         [tokenizer-training.md](tokenizer-training.md)."
+            .into(),
+    );
     goal_lines.push(format!(
         "- both cores in inference: the encoder takes {enc1:.1} ms on 1 thread and {enc2:.1} ms \
          on 2 ({:.2}× speed-up)",
@@ -526,7 +697,9 @@ fn report(dir: &Path) {
     let notes = format!(
         "{matmul}\n\n{agreement}\n\n{setup}\n\nInput: the real nuScenes keyframe ({} pillars, {} \
          camera rays, {} LiDAR rays, {} samples each, rendered in chunks of {} rays on both \
-         sides), the shipped weights `{}`. Times are medians after a warm-up. The encoder starts \
+         sides), the shipped weights `{}`. Each time is the median over {} rounds run \
+         alternately (ours, then PyTorch) of each round's median after a warm-up: a 2-core VM \
+         varies by ±15% from minute to minute. The encoder starts \
          from the same arrays on both sides (resized images, padded pillars, projected reference \
          points); preparing them from the decoded frame is ours alone and takes {} / {} ms on 1 \
          / 2 threads. FLOPs are analytic (`nodes/tokenizer/src/flops.rs`).\n\n## Goals\n\n{}\n",
@@ -536,10 +709,53 @@ fn report(dir: &Path) {
         meta["samples"],
         meta["chunk"],
         meta["weights"].as_str().unwrap_or(WEIGHTS),
+        our_rounds.len(),
         ms(get(&ours, &["1", "inputs_ms"])),
         ms(get(&ours, &["2", "inputs_ms"])),
         goal_lines.join("\n"),
     );
+    let mut bars = Vec::new();
+    for (label, key, _) in stages {
+        let field = format!("{key}_ms");
+        let (ours_ms, eager_ms, compiled_ms) = if key == "world_model" {
+            (
+                get(&ours, &["world_model", "2"]),
+                torch.as_ref().and_then(|t| get(t, &["eager", "2", &field])),
+                torch
+                    .as_ref()
+                    .and_then(|t| get(t, &["compiled", "2", &field])),
+            )
+        } else {
+            (
+                get(&ours, &["2", &field]),
+                torch.as_ref().and_then(|t| get(t, &["eager", "2", &field])),
+                torch
+                    .as_ref()
+                    .and_then(|t| get(t, &["compiled", "2", &field])),
+            )
+        };
+        let short = label.split(" (").next().unwrap_or(label);
+        bars.push((format!("{short}: ours"), ours_ms.unwrap_or(f64::NAN)));
+        bars.push((
+            format!("{short}: PyTorch eager"),
+            eager_ms.unwrap_or(f64::NAN),
+        ));
+        bars.push((
+            format!("{short}: torch.compile"),
+            compiled_ms.unwrap_or(f64::NAN),
+        ));
+    }
+    let plot = bevworld_bench::results_dir().join("vs-pytorch.svg");
+    if let Err(error) = bevworld_plot::bars_svg(
+        &plot,
+        "Tiny tokenizer and world model, 2 threads: ours against PyTorch",
+        "ms (median of rounds)",
+        &bars,
+        false,
+    ) {
+        eprintln!("plot: {error}");
+    }
+    let notes = format!("{notes}\n![ours against PyTorch](vs-pytorch.svg)\n");
     print!("{table}\n{notes}");
     write_results(
         "vs-pytorch",
