@@ -40,6 +40,81 @@ impl AlphaHead {
     fn hidden(&self) -> usize {
         self.hidden_bias.len()
     }
+
+    /// The logits of `BLOCK` features given channel by channel (`features[c][s]`), vectorised
+    /// along the samples.
+    #[inline(always)]
+    fn block_logits(&self, features: &[[f32; BLOCK]]) -> [f32; BLOCK] {
+        let hidden = self.hidden();
+        let mut logits = [self.out_bias; BLOCK];
+        for k in 0..hidden {
+            let mut h = [self.hidden_bias[k]; BLOCK];
+            for (c, row) in features.iter().enumerate() {
+                let w = self.hidden_weight[c * hidden + k];
+                for (v, &f) in h.iter_mut().zip(row) {
+                    *v += f * w;
+                }
+            }
+            let w = self.out_weight[k];
+            for (l, &v) in logits.iter_mut().zip(&h) {
+                *l += v.max(0.0) * w;
+            }
+        }
+        logits
+    }
+
+    /// The logit of every row of a `[rows, C_v]` table (the occupancy grid's α at each voxel
+    /// centre), in parallel over chunks of rows.
+    pub fn table_logits(&self, table: &[f32], channels: usize) -> Vec<f32> {
+        let rows = table.len() / channels.max(1);
+        let mut logits = vec![0f32; rows];
+        if channels == 0 {
+            return logits;
+        }
+        const ROWS_PER_TASK: usize = 4096;
+        logits
+            .par_chunks_mut(ROWS_PER_TASK)
+            .zip(table.par_chunks(ROWS_PER_TASK * channels))
+            .for_each(|(logits, table)| {
+                vectorized(TableKernel {
+                    head: self,
+                    channels,
+                    table,
+                    logits,
+                })
+            });
+        logits
+    }
+}
+
+struct TableKernel<'a> {
+    head: &'a AlphaHead,
+    channels: usize,
+    table: &'a [f32],
+    logits: &'a mut [f32],
+}
+
+impl macerator::WithSimd for TableKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: macerator::Simd>(self) {
+        let channels = self.channels;
+        let mut features = vec![[0f32; BLOCK]; channels];
+        for (logits, rows) in self
+            .logits
+            .chunks_mut(BLOCK)
+            .zip(self.table.chunks(BLOCK * channels))
+        {
+            for (s, row) in rows.chunks_exact(channels).enumerate() {
+                for (feature, &v) in features.iter_mut().zip(row) {
+                    feature[s] = v;
+                }
+            }
+            let block = self.head.block_logits(&features);
+            logits.copy_from_slice(&block[..logits.len()]);
+        }
+    }
 }
 
 /// What a march skips: nothing (dense), or samples in empty cells and samples after the ray's
@@ -128,7 +203,7 @@ impl macerator::WithSimd for RayKernel<'_> {
     #[inline(always)]
     fn with_simd<S: macerator::Simd>(self) -> u64 {
         let m = self.march;
-        let (channels, hidden) = (m.shape.channels, m.head.hidden());
+        let channels = m.shape.channels;
         let [depth_voxels, height, width] = m.shape.voxels();
         let sizes = [width as f32, height as f32, depth_voxels as f32];
         let samples = m.depths.len();
@@ -170,21 +245,7 @@ impl macerator::WithSimd for RayKernel<'_> {
                         row[s] = v;
                     }
                 }
-                // The alpha head, vectorised along the samples.
-                let mut logits = [m.head.out_bias; BLOCK];
-                for k in 0..hidden {
-                    let mut h = [m.head.hidden_bias[k]; BLOCK];
-                    for (c, row) in features.iter().enumerate() {
-                        let w = m.head.hidden_weight[c * hidden + k];
-                        for (v, &f) in h.iter_mut().zip(row) {
-                            *v += f * w;
-                        }
-                    }
-                    let w = m.head.out_weight[k];
-                    for (l, &v) in logits.iter_mut().zip(&h) {
-                        *l += v.max(0.0) * w;
-                    }
-                }
+                let logits = m.head.block_logits(&features);
                 let mut log_alpha = [0f32; BLOCK];
                 let mut log_transparency = [0f32; BLOCK];
                 for ((a, t), &s) in log_alpha.iter_mut().zip(&mut log_transparency).zip(&logits) {

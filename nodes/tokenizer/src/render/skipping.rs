@@ -131,17 +131,28 @@ impl OccupancyGrid {
         // Bound the [rows, C_v] intermediate to about 4 M values.
         let rows = shape.rows();
         let chunk = ((4 << 20) / channels.max(1)).clamp(1, rows.max(1));
-        // By table row.
-        let mut by_row = Vec::with_capacity(rows);
-        for start in (0..rows).step_by(chunk) {
-            let count = chunk.min(rows - start);
-            let slab = field
-                .table()
-                .clone()
-                .narrow(0, start, count)
-                .reshape([1, count, channels]);
-            by_row.extend(logits_of(slab).into_iter().map(|s| s > threshold_logit));
-        }
+        // By table row: on the CPU with the head's host weights (`AlphaHead::table_logits`), in
+        // parallel over rows; elsewhere through the model, a bounded slab at a time.
+        let by_row: Vec<bool> = match (model.alpha_head_on_host(), field.host_table()) {
+            (Some(head), Some(table)) => head
+                .table_logits(table, channels)
+                .into_iter()
+                .map(|s| s > threshold_logit)
+                .collect(),
+            _ => {
+                let mut by_row = Vec::with_capacity(rows);
+                for start in (0..rows).step_by(chunk) {
+                    let count = chunk.min(rows - start);
+                    let slab = field
+                        .table()
+                        .clone()
+                        .narrow(0, start, count)
+                        .reshape([1, count, channels]);
+                    by_row.extend(logits_of(slab).into_iter().map(|s| s > threshold_logit));
+                }
+                by_row
+            }
+        };
         // Fine occupancy `[Z, Y, X]`, read from the table's row order through the per-axis
         // row terms (no integer division per voxel).
         let [x_terms, y_terms, z_terms] = shape.row_terms();
@@ -215,13 +226,21 @@ impl OccupancyGrid {
 /// neighbours) occupied too: a maximum filter of width 3, separable into one pass per axis.
 fn dilate_by_one(grid: &[bool], [z, y, x]: [usize; 3]) -> Vec<bool> {
     let mut current = grid.to_vec();
+    // Along each axis in turn: a voxel is set when it or a neighbour along that axis is.
+    // Lines along the axis are `len` voxels `stride` apart; `outer` blocks of `inner` lines.
     for (stride, len) in [(1, x), (x, y), (x * y, z)] {
         let source = current.clone();
-        for (i, out) in current.iter_mut().enumerate() {
-            let position = (i / stride) % len;
-            *out = source[i]
-                || (position > 0 && source[i - stride])
-                || (position + 1 < len && source[i + stride]);
+        let block = stride * len;
+        for start in (0..source.len()).step_by(block.max(1)) {
+            for offset in 0..stride {
+                let line = start + offset;
+                for position in 0..len {
+                    let i = line + position * stride;
+                    current[i] = source[i]
+                        || (position > 0 && source[i - stride])
+                        || (position + 1 < len && source[i + stride]);
+                }
+            }
         }
     }
     current
