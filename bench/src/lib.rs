@@ -126,3 +126,32 @@ pub fn time_runs<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, f64, T) {
     times.sort_by(f64::total_cmp);
     (percentile(&times, 0.5), percentile(&times, 0.99), last)
 }
+
+/// The real nuScenes keyframe the tokenizer benchmarks run on, its pillars at the graphs'
+/// defaults (20 points per pillar, as PointPillars; the frame's token set, as `encode` checks),
+/// and the model inputs of `config`.
+pub fn nuscenes_keyframe(
+    config: &bevworld_tokenizer::TokenizerConfig,
+) -> (
+    bevworld_types::SensorFrame,
+    bevworld_types::Pillars,
+    bevworld_tokenizer::FrameInputs,
+) {
+    let frame = bevworld_sensors::Dataset::open(
+        &bevworld_sensors::data_root().join("nuscenes-sample"),
+        &bevworld_sensors::DatasetOptions::default(),
+    )
+    .expect("the nuScenes sample in $BEVWORLD_DATA (default ../shared/data)")
+    .read(0)
+    .expect("frame 0");
+    let mut points = Vec::new();
+    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
+    let inputs = bevworld_tokenizer::FrameInputs::new(config);
+    let mut pillars = bevworld_pillarize::Pillarizer::new(
+        inputs.pillar_grid(),
+        bevworld_pillarize::Limits::default(),
+    )
+    .run(&points);
+    pillars.meta.frame_token = frame.frame_token.clone();
+    (frame, pillars, inputs)
+}

@@ -15,12 +15,11 @@
 
 use std::path::PathBuf;
 
-use bevworld_bench::{markdown_table, psnr, time_runs, write_results};
-use bevworld_pillarize::{Limits, Pillarizer};
-use bevworld_sensors::{Dataset, DatasetOptions};
+use bevworld_bench::{markdown_table, nuscenes_keyframe, psnr, time_runs, write_results};
+use bevworld_pillarize::Limits;
 use bevworld_tokenizer::flops::TokenizerFlops;
 use bevworld_tokenizer::render::{OccupancyGrid, RenderedRays, SkipOptions, VoxelScene};
-use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
+use bevworld_tokenizer::{TokenizerConfig, load_weights};
 use burn::module::Module;
 use burn::prelude::*;
 
@@ -35,21 +34,8 @@ fn main() {
         Some(path) => load_weights(&config, path, &device).expect("TOKENIZER_WEIGHTS"),
         None => config.init_seeded(0, &device),
     };
-    let frame = Dataset::open(
-        &bevworld_sensors::data_root().join("nuscenes-sample"),
-        &DatasetOptions::default(),
-    )
-    .expect("the nuScenes sample in $BEVWORLD_DATA (default ../shared/data)")
-    .read(0)
-    .expect("frame 0");
-    let mut points = Vec::new();
-    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
-    // The graphs' pillarize defaults: 20 points per pillar, as PointPillars.
+    let (frame, pillars, inputs) = nuscenes_keyframe(&config);
     let limits = Limits::default();
-    let inputs = FrameInputs::new(&config);
-    let pillars = Pillarizer::new(inputs.pillar_grid(), limits).run(&points);
-    let mut meta_pillars = pillars.clone();
-    meta_pillars.meta.frame_token = frame.frame_token.clone();
     let flops = TokenizerFlops::of(&config, pillars.len(), limits.max_points_per_pillar);
     let read = |t: Tensor<1>| {
         t.into_data()
@@ -61,7 +47,7 @@ fn main() {
     let runs = 10;
     let encoder = time_runs(runs, || {
         let input = inputs
-            .encoder_input(&frame, &meta_pillars, &device)
+            .encoder_input(&frame, &pillars, &device)
             .expect("encoder input");
         let encoded = model.encode(input);
         std::hint::black_box(read(encoded.latent.clone().sum().reshape([1])));

@@ -12,14 +12,13 @@
 
 use std::path::Path;
 
-use bevworld_bench::{markdown_table, psnr, time_runs, write_results};
+use bevworld_bench::{markdown_table, nuscenes_keyframe, psnr, time_runs, write_results};
 use bevworld_blocks::init::random_normal;
 use bevworld_blocks::{sinusoidal_1d, sinusoidal_2d, timestep_embedding};
-use bevworld_pillarize::{Limits, Pillarizer};
-use bevworld_sensors::{Dataset, DatasetOptions};
+use bevworld_pillarize::Limits;
 use bevworld_tokenizer::flops::TokenizerFlops;
 use bevworld_tokenizer::render::{OccupancyGrid, SkipOptions, VoxelScene};
-use bevworld_tokenizer::{FrameInputs, TokenizerConfig, load_weights};
+use bevworld_tokenizer::{TokenizerConfig, load_weights};
 use bevworld_world_model::{ACTION_FEATURES, LoadedWorldModel};
 use burn::prelude::*;
 use burn::store::{ModuleSnapshot, SafetensorsStore};
@@ -73,19 +72,8 @@ fn dump(dir: &Path) {
     let mut store = SafetensorsStore::from_file(dir.join("weights.safetensors")).overwrite(true);
     model.save_into(&mut store).expect("weights as safetensors");
 
-    let frame = Dataset::open(
-        &bevworld_sensors::data_root().join("nuscenes-sample"),
-        &DatasetOptions::default(),
-    )
-    .expect("the nuScenes sample in $BEVWORLD_DATA (default ../shared/data)")
-    .read(0)
-    .expect("frame 0");
-    let mut points = Vec::new();
-    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
+    let (frame, pillars, inputs) = nuscenes_keyframe(&config);
     let limits = Limits::default();
-    let inputs = FrameInputs::new(&config);
-    let mut pillars = Pillarizer::new(inputs.pillar_grid(), limits).run(&points);
-    pillars.meta.frame_token = frame.frame_token.clone();
     let arrays = inputs
         .encoder_arrays(&frame, &pillars)
         .expect("encoder input");
@@ -294,18 +282,7 @@ fn profile(stage: &str, runs: usize) {
     }
     let config = TokenizerConfig::from_yaml_file(&root.join(CONFIG)).expect("tiny config");
     let model = load_weights(&config, &root.join(WEIGHTS), &device).expect("shipped weights");
-    let frame = Dataset::open(
-        &bevworld_sensors::data_root().join("nuscenes-sample"),
-        &DatasetOptions::default(),
-    )
-    .expect("the nuScenes sample")
-    .read(0)
-    .expect("frame 0");
-    let mut points = Vec::new();
-    bevworld_pillarize::ego_points_into(&frame.lidar, &mut points);
-    let inputs = FrameInputs::new(&config);
-    let mut pillars = Pillarizer::new(inputs.pillar_grid(), Limits::default()).run(&points);
-    pillars.meta.frame_token = frame.frame_token.clone();
+    let (frame, pillars, inputs) = nuscenes_keyframe(&config);
     let arrays = inputs.encoder_arrays(&frame, &pillars).expect("inputs");
     let latent = model.encode(arrays.to_input(&device)).latent;
     let voxels = model.voxels(latent.clone());

@@ -28,6 +28,19 @@ pub struct RenderedRays {
 }
 
 impl RenderedRays {
+    /// `rays` rays of `channels` features, all zero, with nothing evaluated yet of the
+    /// `rays × samples` a dense render evaluates.
+    pub fn zeros(rays: usize, channels: usize, samples: usize) -> Self {
+        Self {
+            features: vec![0.0; rays * channels],
+            channels,
+            depth: vec![0.0; rays],
+            opacity: vec![0.0; rays],
+            samples_evaluated: 0,
+            samples_dense: (rays * samples) as u64,
+        }
+    }
+
     pub fn rays(&self) -> usize {
         self.depth.len()
     }

@@ -153,14 +153,7 @@ impl March<'_> {
     pub fn render(&self, rays: &Rays) -> RenderedRays {
         let channels = self.shape.channels;
         let count = rays.len();
-        let mut out = RenderedRays {
-            features: vec![0.0; count * channels],
-            channels,
-            depth: vec![0.0; count],
-            opacity: vec![0.0; count],
-            samples_evaluated: 0,
-            samples_dense: (count * self.depths.len()) as u64,
-        };
+        let mut out = RenderedRays::zeros(count, channels, self.depths.len());
         let terms = self.shape.row_terms();
         let evaluated: u64 = out
             .features

@@ -347,14 +347,7 @@ impl VoxelScene<'_> {
         let channels = voxels.shape.channels;
         let r_count = rays.len();
         let kept = KeptSamples::of(grid, rays, depths, placement);
-        let mut out = RenderedRays {
-            features: vec![0.0; r_count * channels],
-            channels,
-            depth: vec![0.0; r_count],
-            opacity: vec![0.0; r_count],
-            samples_evaluated: 0,
-            samples_dense: (r_count * depths.len()) as u64,
-        };
+        let mut out = RenderedRays::zeros(r_count, channels, depths.len());
         let mut log_t = vec![0.0f32; r_count];
         let mut cursor = vec![0usize; r_count];
         let segment = options.segment.max(1);
