@@ -9,13 +9,14 @@
 //!   bench/scripts/long-rollout.sh
 //!   cargo run --release -p bevworld-bench --bin long_rollout -- out/long-rollout/latents
 
+use bevworld_types::mean_abs_difference;
 use std::path::{Path, PathBuf};
 
 use bevworld_bench::{markdown_table, results_dir, write_results};
 use bevworld_plot::{Panel, Series, panels_png};
 use bevworld_sinks::npy::read_npy_f32;
 use bevworld_types::{EgoAction, Pose};
-use bevworld_world_model::{DdimConfig, LoadedWorldModel, Spacing};
+use bevworld_world_model::{DdimConfig, LoadedWorldModel};
 use burn::prelude::*;
 use glam::{DMat4, DVec4};
 
@@ -88,14 +89,6 @@ fn scenes(dir: &Path) -> Vec<Scene> {
         .collect()
 }
 
-fn mean_abs(a: &[f32], b: &[f32]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| f64::from((x - y).abs()))
-        .sum::<f64>()
-        / a.len().max(1) as f64
-}
-
 fn main() {
     let root = bevworld_bench::manifest_dir().join("..");
     let latents_dir = std::env::args()
@@ -138,12 +131,7 @@ fn main() {
             let first = p + done + 1; // the keyframe of the first future frame
             let context_actions: Vec<EgoAction> = (first - p..first).map(&action_into).collect();
             let future: Vec<EgoAction> = (first..first + n).map(&action_into).collect();
-            let sampler = DdimConfig {
-                steps: 1,
-                eta: 0.0,
-                spacing: Spacing::Trailing,
-                seed: round,
-            };
+            let sampler = DdimConfig::deterministic(1, round);
             let model = rollout
                 .run(&model_context, &context_actions, &future, &sampler)
                 .expect("forecast");
@@ -154,9 +142,13 @@ fn main() {
             let copied = scene.latents[p].clone();
             for k in 0..n.min(frames_ahead - done) {
                 let truth = truth(done + k + 1);
-                errors[0][done + k].push(mean_abs(&standardised(&model.future[k]), &truth));
-                errors[1][done + k].push(mean_abs(&standardised(&warped.ego_warped[k]), &truth));
-                errors[2][done + k].push(mean_abs(&standardised(&copied), &truth));
+                errors[0][done + k]
+                    .push(mean_abs_difference(&standardised(&model.future[k]), &truth));
+                errors[1][done + k].push(mean_abs_difference(
+                    &standardised(&warped.ego_warped[k]),
+                    &truth,
+                ));
+                errors[2][done + k].push(mean_abs_difference(&standardised(&copied), &truth));
             }
             model_context = model.future[n - p..].to_vec();
             warp_context = warped.ego_warped[n - p..].to_vec();

@@ -332,12 +332,7 @@ impl Sink for ForecastMetrics {
                 for (method, latent) in &group {
                     let mut values = latent.data.clone();
                     stats.standardize(&mut values);
-                    let l1 = values
-                        .iter()
-                        .zip(&truth)
-                        .map(|(a, b)| f64::from((a - b).abs()))
-                        .sum::<f64>()
-                        / truth.len().max(1) as f64;
+                    let l1 = bevworld_types::mean_abs_difference(&values, &truth);
                     // Frames ahead are the same for every method of a horizon.
                     let ahead = self
                         .cells

@@ -133,3 +133,14 @@ impl LatentStatsAccumulator {
         })
     }
 }
+
+/// The mean absolute difference of two latents, value by value: the standardised latent L1 of
+/// the forecast metrics and of the world model's validation when both are standardised. Values
+/// beyond the shorter one are not compared.
+pub fn mean_abs_difference(a: &[f32], b: &[f32]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| f64::from((x - y).abs()))
+        .sum::<f64>()
+        / a.len().min(b.len()).max(1) as f64
+}

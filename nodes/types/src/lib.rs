@@ -34,7 +34,9 @@ pub use forecast::{
     RenderedFuture, virtual_frame,
 };
 pub use frame::SensorFrame;
-pub use latent_stats::{LatentStats, LatentStatsAccumulator, LatentStatsError};
+pub use latent_stats::{
+    LatentStats, LatentStatsAccumulator, LatentStatsError, mean_abs_difference,
+};
 pub use latent_stats_file::{LatentStatsFile, StatsFileError, stats_path_for};
 pub use manoeuvre::Manoeuvre;
 pub use pillars::{GridError, PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};

@@ -5,6 +5,7 @@
 //! place. The machinery (schedule, clipping, the weights' average, checkpoints, the
 //! data-parallel step, the loop) is `bevworld_training`'s.
 
+use bevworld_types::mean_abs_difference;
 use std::path::Path;
 
 use bevworld_blocks::init::random_values;
@@ -466,14 +467,6 @@ pub struct HorizonScores {
     pub ego_warp: Vec<f64>,
 }
 
-fn mean_abs(a: &[f32], b: &[f32]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| f64::from((x - y).abs()))
-        .sum::<f64>()
-        / a.len().max(1) as f64
-}
-
 impl HorizonScores {
     /// `predicted` is `[future, C, H, W]`, the forecast latents (the base already added).
     pub fn of_window(window: &WindowValues, predicted: &[f32], shape: &WindowShape) -> Self {
@@ -482,13 +475,15 @@ impl HorizonScores {
         let mut scores = Self::default();
         for k in 0..shape.future {
             let truth = &window.future[k * frame..(k + 1) * frame];
-            scores
-                .forecast
-                .push(mean_abs(&predicted[k * frame..(k + 1) * frame], truth));
-            scores.copy_last.push(mean_abs(current, truth));
-            scores
-                .ego_warp
-                .push(mean_abs(&window.warped[k * frame..(k + 1) * frame], truth));
+            scores.forecast.push(mean_abs_difference(
+                &predicted[k * frame..(k + 1) * frame],
+                truth,
+            ));
+            scores.copy_last.push(mean_abs_difference(current, truth));
+            scores.ego_warp.push(mean_abs_difference(
+                &window.warped[k * frame..(k + 1) * frame],
+                truth,
+            ));
         }
         scores
     }
