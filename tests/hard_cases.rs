@@ -11,12 +11,12 @@ mod common;
 
 use std::path::Path;
 
-use common::{bevworld_owned, node, read_json, repo, text};
+use common::{bevworld_owned, export_latents, node, read_json, repo, text};
 
 use bevworld_sinks::npy::read_npy_f32;
 use bevworld_types::manoeuvre::constant_turn;
 use bevworld_world_model::manoeuvre::Manoeuvre;
-use bevworld_world_model::{DdimConfig, LoadedWorldModel, Spacing};
+use bevworld_world_model::{DdimConfig, LoadedWorldModel};
 use burn::prelude::*;
 
 fn path(p: &Path) -> String {
@@ -51,21 +51,7 @@ fn a_twenty_second_rollout_stays_finite_and_at_the_training_latents_scale() {
     let dir = tempfile::tempdir().expect("dir");
     let data = scene(dir.path());
     let latents = dir.path().join("latents");
-    let output = bevworld_owned(&[
-        "run".into(),
-        "configs/graphs/export_latents.yaml".into(),
-        "--set".into(),
-        format!("source.data={}", path(&data)),
-        "--set".into(),
-        format!("export.out={}", path(&latents)),
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
-    let index: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(latents.join("index.json")).expect("index"))
-            .expect("json");
-    let mut frames: Vec<&serde_json::Value> =
-        index["frames"].as_array().expect("frames").iter().collect();
-    frames.sort_by_key(|f| f["timestamp_us"].as_i64());
+    let frames = export_latents(&data, &latents);
     let loaded = LoadedWorldModel::shipped_tiny(&repo(), Device::flex()).expect("weights");
     let config = &loaded.config;
     let p = config.context_frames;
@@ -90,12 +76,7 @@ fn a_twenty_second_rollout_stays_finite_and_at_the_training_latents_scale() {
     let mut worst = (1.0f64, 1.0f64);
     while seconds < 20.0 {
         let future = Manoeuvre::Keep.actions(&cruise, config.future_frames, interval);
-        let sampler = DdimConfig {
-            steps: 1,
-            eta: 0.0,
-            spacing: Spacing::Trailing,
-            seed: round,
-        };
+        let sampler = DdimConfig::deterministic(1, round);
         let output = rollout
             .run(&context, &actions, &future, &sampler)
             .expect("forecast");

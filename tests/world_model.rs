@@ -7,12 +7,12 @@
 
 mod common;
 
-use common::{bevworld_owned, repo, text};
+use common::{bevworld_owned, export_latents, repo, text};
 
 use bevworld_sinks::npy::read_npy_f32;
 use bevworld_types::{EgoAction, Pose};
 use bevworld_world_model::manoeuvre::Manoeuvre;
-use bevworld_world_model::{DdimConfig, LoadedWorldModel, Spacing};
+use bevworld_world_model::{DdimConfig, LoadedWorldModel};
 use burn::prelude::*;
 use glam::{DMat4, DVec4};
 
@@ -55,22 +55,7 @@ fn a_left_and_a_right_turn_forecast_different_futures() {
         "224x126".into(),
     ]);
     assert!(output.status.success(), "{}", text(&output));
-    let output = bevworld_owned(&[
-        "run".into(),
-        "configs/graphs/export_latents.yaml".into(),
-        "--set".into(),
-        format!("source.data={}", path(&synth)),
-        "--set".into(),
-        format!("export.out={}", path(&latents)),
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
-
-    let index: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(latents.join("index.json")).expect("index"))
-            .expect("json");
-    let mut frames: Vec<&serde_json::Value> =
-        index["frames"].as_array().expect("frames").iter().collect();
-    frames.sort_by_key(|f| f["timestamp_us"].as_i64());
+    let frames = export_latents(&synth, &latents);
     assert_eq!(frames.len(), 4, "a 2 s scene has 4 keyframes");
     let poses: Vec<(Pose, i64)> = frames
         .iter()
@@ -99,12 +84,7 @@ fn a_left_and_a_right_turn_forecast_different_futures() {
         .expect("the shipped world model pairs with the shipped tokenizer");
     let (config, rollout) = (&loaded.config, loaded.rollout());
     // The shipped sampler: one DDIM step (configs/models/train-world-model-tiny.yaml).
-    let sampler = |seed: u64| DdimConfig {
-        steps: 1,
-        eta: 0.0,
-        spacing: Spacing::Trailing,
-        seed,
-    };
+    let sampler = |seed: u64| DdimConfig::deterministic(1, seed);
     let current = actions[2];
     let future = |m: Manoeuvre| m.actions(&current, config.future_frames, config.frame_interval_s);
     let forecast = |m: Manoeuvre, seed: u64| {

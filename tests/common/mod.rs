@@ -38,6 +38,24 @@ pub fn read_json(path: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(path).expect("the run wrote it")).expect("JSON")
 }
 
+/// Exports the keyframe latents of the dataset at `data` into `out` with
+/// `export_latents.yaml`, and returns the index's frames in time order.
+pub fn export_latents(data: &Path, out: &Path) -> Vec<serde_json::Value> {
+    let output = bevworld_owned(&[
+        "run".into(),
+        "configs/graphs/export_latents.yaml".into(),
+        "--set".into(),
+        format!("source.data={}", data.display()),
+        "--set".into(),
+        format!("export.out={}", out.display()),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let index = read_json(&out.join("index.json"));
+    let mut frames = index["frames"].as_array().expect("frames").clone();
+    frames.sort_by_key(|f| f["timestamp_us"].as_i64());
+    frames
+}
+
 pub fn text(output: &Output) -> String {
     format!(
         "{}{}",

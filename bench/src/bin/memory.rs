@@ -13,9 +13,7 @@
 use bevworld_bench::{markdown_table, write_results};
 use bevworld_blocks::init::random_normal;
 use bevworld_world_model::ddim::noisy_and_target;
-use bevworld_world_model::{
-    DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WorldModelConfig, forecast,
-};
+use bevworld_world_model::{DdimConfig, ForecastInputs, NoiseSchedule, WorldModelConfig, forecast};
 use burn::prelude::*;
 
 fn status_kib(field: &str) -> Option<u64> {
@@ -55,12 +53,7 @@ fn one_forecast(config: &WorldModelConfig) {
         base: None,
     };
     let schedule = NoiseSchedule::new(&config.diffusion);
-    let sampler = DdimConfig {
-        steps: 1,
-        eta: 0.0,
-        spacing: Spacing::Trailing,
-        seed: 0,
-    };
+    let sampler = DdimConfig::deterministic(1, 0);
     let _ = forecast(&model, config, &schedule, &inputs, &sampler)
         .expect("forecast")
         .into_data();

@@ -16,8 +16,7 @@ use bevworld_bench::{markdown_table, percentile, results_dir, write_results};
 use bevworld_blocks::init::random_normal;
 use bevworld_plot::{Labelled, Reference, ScatterPlot, scatter_png};
 use bevworld_world_model::{
-    ContextPasses, DdimConfig, ForecastInputs, LoadedWorldModel, NoiseSchedule, Spacing,
-    forecast_with,
+    ContextPasses, DdimConfig, ForecastInputs, LoadedWorldModel, NoiseSchedule, forecast_with,
 };
 use burn::prelude::*;
 
@@ -129,37 +128,18 @@ fn cache_timings(root: &Path) -> Vec<(usize, f64, f64)> {
     STEPS
         .iter()
         .map(|&steps| {
-            let sampler = DdimConfig {
-                steps,
-                eta: 0.0,
-                spacing: Spacing::Trailing,
-                seed: 0,
-            };
+            let sampler = DdimConfig::deterministic(steps, 0);
             let repeats = if steps >= 16 { 1 } else { 3 };
-            let cached = median_ms(repeats, || {
-                let _ = forecast_with(
-                    &weights.model,
-                    config,
-                    &schedule,
-                    &inputs,
-                    &sampler,
-                    ContextPasses::Cached,
-                )
-                .expect("forecast")
-                .into_data();
-            });
-            let recomputed = median_ms(repeats, || {
-                let _ = forecast_with(
-                    &weights.model,
-                    config,
-                    &schedule,
-                    &inputs,
-                    &sampler,
-                    ContextPasses::EveryStep,
-                )
-                .expect("forecast")
-                .into_data();
-            });
+            let time = |passes: ContextPasses| {
+                median_ms(repeats, || {
+                    let _ =
+                        forecast_with(&weights.model, config, &schedule, &inputs, &sampler, passes)
+                            .expect("forecast")
+                            .into_data();
+                })
+            };
+            let cached = time(ContextPasses::Cached);
+            let recomputed = time(ContextPasses::EveryStep);
             println!("{steps} steps: cached {cached:.0} ms, recomputed {recomputed:.0} ms");
             (steps, cached, recomputed)
         })

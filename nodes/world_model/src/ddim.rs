@@ -54,6 +54,17 @@ pub enum DdimError {
 }
 
 impl DdimConfig {
+    /// Deterministic sampling (η = 0) with trailing timesteps, as the shipped graphs sample:
+    /// `steps` network passes from the noise of `seed`.
+    pub fn deterministic(steps: usize, seed: u64) -> Self {
+        Self {
+            steps,
+            eta: 0.0,
+            spacing: Spacing::Trailing,
+            seed,
+        }
+    }
+
     pub fn check(&self, schedule: &NoiseSchedule) -> Result<(), DdimError> {
         if self.steps == 0 || self.steps > schedule.steps() {
             return Err(DdimError::Steps {

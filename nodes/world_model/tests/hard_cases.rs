@@ -191,12 +191,7 @@ fn actions_outside_the_training_range_give_finite_forecasts_and_are_flagged() {
         .map(|k| values(random_normal(40 + k as u64, [cells], 0.1, 0.8, &device())))
         .collect();
     let past = vec![action(8.0, 0.0); c.context_frames];
-    let sampler = DdimConfig {
-        steps: 2,
-        eta: 0.0,
-        spacing: Spacing::Trailing,
-        seed: 1,
-    };
+    let sampler = DdimConfig::deterministic(2, 1);
     assert!(!stats.outside_training(&action(8.0, 0.0)));
     for (name, future) in [
         ("1 rad/s", action(8.0, 1.0)),
@@ -229,12 +224,7 @@ fn an_all_zero_context_gives_a_finite_forecast() {
             &zeros,
             &vec![action(8.0, 0.0); c.context_frames],
             &vec![action(8.0, 0.0); c.future_frames],
-            &DdimConfig {
-                steps: 4,
-                eta: 0.0,
-                spacing: Spacing::Trailing,
-                seed: 2,
-            },
+            &DdimConfig::deterministic(4, 2),
         )
         .expect("zeros");
     // The ego-warped zero latent is zero where it comes from inside the grid, and the

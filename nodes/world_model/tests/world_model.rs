@@ -207,12 +207,7 @@ fn sampling_is_seeded_and_deterministic_and_leaves_the_context_alone() {
     assert_eq!(values(inputs.context.clone()), context_before);
     // One step and every step from pure noise under zero terminal SNR stay finite.
     for steps in [1, 1000] {
-        let sampler = DdimConfig {
-            steps,
-            eta: 0.0,
-            spacing: Spacing::Trailing,
-            seed: 3,
-        };
+        let sampler = DdimConfig::deterministic(steps, 3);
         if steps == 1000 {
             // 1000 passes of even the small model take a while; 1000-step finiteness of the
             // sampler alone is the schedule's test. Here: 50 steps, the paper's usual count.
@@ -227,12 +222,7 @@ fn sampling_is_seeded_and_deterministic_and_leaves_the_context_alone() {
             assert!(out.iter().all(|v| v.is_finite()));
         }
     }
-    let bad = DdimConfig {
-        steps: 0,
-        eta: 0.0,
-        spacing: Spacing::Trailing,
-        seed: 0,
-    };
+    let bad = DdimConfig::deterministic(0, 0);
     assert!(forecast(&model, &c, &schedule, &inputs, &bad).is_err());
     let bad = DdimConfig { steps: 1001, ..bad };
     let error = forecast(&model, &c, &schedule, &inputs, &bad).expect_err("refused");
@@ -368,34 +358,13 @@ fn the_context_cache_changes_no_prediction_and_no_forecast() {
     let schedule = NoiseSchedule::new(&c.diffusion);
     let inputs = forecast_inputs(&c, 40);
     for steps in [1, 3, 8] {
-        let sampler = DdimConfig {
-            steps,
-            eta: 0.0,
-            spacing: Spacing::Trailing,
-            seed: 5,
+        let sampler = DdimConfig::deterministic(steps, 5);
+        let run = |passes: ContextPasses| {
+            values(
+                forecast_with(&model, &c, &schedule, &inputs, &sampler, passes).expect("forecast"),
+            )
         };
-        let a = values(
-            forecast_with(
-                &model,
-                &c,
-                &schedule,
-                &inputs,
-                &sampler,
-                ContextPasses::Cached,
-            )
-            .expect("cached"),
-        );
-        let b = values(
-            forecast_with(
-                &model,
-                &c,
-                &schedule,
-                &inputs,
-                &sampler,
-                ContextPasses::EveryStep,
-            )
-            .expect("recomputed"),
-        );
+        let (a, b) = (run(ContextPasses::Cached), run(ContextPasses::EveryStep));
         let gap = a
             .iter()
             .zip(&b)
