@@ -238,18 +238,6 @@ fn dump(dir: &Path) {
 fn profile(stage: &str, runs: usize) {
     let device = Device::flex();
     let root = bevworld_bench::manifest_dir().join("..");
-    if stage == "softmax" {
-        let mut values: Vec<f32> = (0..(1 << 23)).map(|i| (i % 1000) as f32 / 100.0).collect();
-        let started = std::time::Instant::now();
-        for _ in 0..runs {
-            bevworld_blocks::activation::softmax_rows_in_place(&mut values, 256);
-        }
-        println!(
-            "softmax: {:.2} ns per value",
-            started.elapsed().as_secs_f64() * 1e9 / (runs * values.len()) as f64
-        );
-        return;
-    }
     if stage == "world_model" {
         let loaded = LoadedWorldModel::shipped_tiny(&root, device.clone()).expect("world model");
         let config = &loaded.config;

@@ -8,10 +8,11 @@
 //!   (`frame_input.rs::an_empty_sweep_still_encodes`, beside the frame's other inputs), and NaN,
 //!   infinite and huge sample points sample zero (`render.rs`).
 
+mod common;
+use common::weights_of;
+
 use bevworld_tokenizer::encoder::projection::{FusionCamera, project_points};
-use bevworld_tokenizer::render::{
-    VoxelField, log_transmittance_after, render_weights, sample_trilinear,
-};
+use bevworld_tokenizer::render::{VoxelField, log_transmittance_after, sample_trilinear};
 use bevworld_types::{Intrinsics, Pose};
 use burn::prelude::*;
 use glam::DVec3;
@@ -22,14 +23,6 @@ fn device() -> Device {
 
 fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_to_vec::<f32>().expect("f32")
-}
-
-fn weights_of(logits: Vec<f32>, rays: usize) -> Vec<f32> {
-    let samples = logits.len() / rays;
-    values(render_weights(Tensor::from_data(
-        TensorData::new(logits, [rays, samples]),
-        &device(),
-    )))
 }
 
 #[test]

@@ -2,6 +2,9 @@
 //! border, and against finite differences (sample points are data, so gradients flow to the
 //! voxels). The numerical extremes are in `hard_cases.rs`.
 
+mod common;
+use common::weights_of;
+
 use bevworld_tokenizer::render::{
     VoxelField, expected_depth, log_transmittance_after, render_weights, sample_trilinear,
 };
@@ -162,14 +165,6 @@ fn trilinear_gradients_match_finite_differences() {
     // 8 corners each for the two points inside, 4 for the one half outside in x (no corner
     // shared), two channels each.
     assert_eq!(touched, 2 * 20);
-}
-
-fn weights_of(logits: Vec<f32>, rays: usize) -> Vec<f32> {
-    let samples = logits.len() / rays;
-    values(render_weights(Tensor::from_data(
-        TensorData::new(logits, [rays, samples]),
-        &device(),
-    )))
 }
 
 #[test]

@@ -1,5 +1,5 @@
-//! What several tokenizer test files need: the repository's configs and the real nuScenes
-//! keyframe beside the checkout.
+//! What several tokenizer test files need: the repository's configs, the real nuScenes
+//! keyframe beside the checkout, and volume-rendering weights of hand-written logits.
 #![allow(dead_code)] // each test file uses its own part
 
 use std::path::PathBuf;
@@ -33,4 +33,16 @@ pub fn nuscenes_frame() -> Option<SensorFrame> {
             .read(0)
             .expect("frame 0"),
     )
+}
+
+/// The render weights of `rays` rays of alpha logits, row-major, on the CPU.
+pub fn weights_of(logits: Vec<f32>, rays: usize) -> Vec<f32> {
+    let samples = logits.len() / rays;
+    bevworld_tokenizer::render::render_weights(burn::tensor::Tensor::from_data(
+        burn::tensor::TensorData::new(logits, [rays, samples]),
+        &burn::prelude::Device::flex(),
+    ))
+    .into_data()
+    .try_to_vec::<f32>()
+    .expect("f32")
 }
