@@ -102,14 +102,14 @@ fn a_left_and_a_right_turn_forecast_different_futures() {
         between_actions > 3.0 * between_seeds,
         "left vs right differ by {between_actions:.4}, two seeds of a left turn by {between_seeds:.4}"
     );
-    // The network's own contribution, forecast less ego warp. A network blind to its action
+    // The network's own contribution, forecast less its base. A network blind to its action
     // would give the same residual for both turns from the same noise (a difference of 0);
     // this one's turns differ by more than a redraw of the noise moves it (measured: 0.18
     // against 0.11, bench/results/world-model-training.md).
     let own = |o: &bevworld_world_model::rollout::RolloutOutput| -> Vec<Vec<f32>> {
         o.future
             .iter()
-            .zip(&o.ego_warped)
+            .zip(&o.base)
             .map(|(f, w)| f.iter().zip(w).map(|(a, b)| a - b).collect())
             .collect()
     };

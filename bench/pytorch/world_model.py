@@ -43,14 +43,22 @@ class WorldModel:
         out = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
         return self.linear(out.transpose(1, 2).reshape(count, tokens, dim), name + ".proj")
 
-    def forward(self, latents, actions, time_embedding, space, time, future):
+    def forward(self, latents, actions, time_embedding, space, time, future, warped=None):
         c = self.c
         b, frames, channels, height, width = latents.shape
         p = c["patch"]
         rows, columns = height // p, width // p
-        tokens = latents.reshape(b, frames, channels, rows, p, columns, p)
-        tokens = tokens.permute(0, 1, 3, 5, 2, 4, 6).reshape(b, frames, rows * columns, -1)
-        x = self.linear(tokens, "patch_embed") + space[None, None] + time[None, :, None]
+
+        def patchify(x):
+            n = x.shape[1]
+            x = x.reshape(b, n, channels, rows, p, columns, p)
+            return x.permute(0, 1, 3, 5, 2, 4, 6).reshape(b, n, rows * columns, -1)
+
+        x = self.linear(patchify(latents), "patch_embed") + space[None, None] + time[None, :, None]
+        if warped is not None and "warp_embed.weight" in self.w:
+            # ego_warp_input: the future frames' tokens also embed their ego-warped latent.
+            w = self.linear(patchify(warped), "warp_embed")
+            x = torch.cat([x[:, : frames - future], x[:, frames - future :] + w], 1)
         action = self.linear(F.silu(self.linear(actions, "condition.action_in")), "condition.action_out")
         timestep = self.linear(F.silu(self.linear(time_embedding, "condition.time_in")), "condition.time_out")
         condition = torch.cat([action, timestep.reshape(b, frames, -1)], 2)  # [B, F, c]
@@ -90,5 +98,6 @@ def load(folder):
         space=array("wm_space"),
         time=array("wm_time"),
         future=meta["future"],
+        warped=array("wm_warped"),
     )
     return model, inputs, array("wm_output")

@@ -56,6 +56,14 @@ pub struct TrainWorldModelArgs {
     /// itself (false), overriding the model config's `residual_over_ego_warp`.
     #[arg(long, value_name = "true|false")]
     pub residual: Option<bool>,
+    /// Ablation: the horizon (s) at which the warp's weight in the residual's base reaches 0,
+    /// overriding the model config's `ego_warp_fade_s`; `none` keeps the full warp.
+    #[arg(long, value_name = "SECONDS|none")]
+    pub ego_warp_fade: Option<String>,
+    /// Ablation: the future frames' tokens embed their ego-warped current latent (true) or not,
+    /// overriding the model config's `ego_warp_input`.
+    #[arg(long, value_name = "true|false")]
+    pub ego_warp_input: Option<bool>,
     /// Ablation: keep only these stages, numbered from 1 (e.g. 3: the long-sequence stage
     /// alone).
     #[arg(long, value_delimiter = ',', value_name = "N,..")]
@@ -313,6 +321,17 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
                 })
                 .transpose()?,
             residual_over_ego_warp: args.residual,
+            ego_warp_fade_s: args
+                .ego_warp_fade
+                .as_deref()
+                .map(|text| match text {
+                    "none" => Ok(None),
+                    seconds => seconds.parse::<f64>().map(Some).map_err(|_| {
+                        anyhow!("--ego-warp-fade: '{seconds}' is not a number of seconds or none")
+                    }),
+                })
+                .transpose()?,
+            ego_warp_input: args.ego_warp_input,
             stages: args.stages.clone(),
             stage_steps: args.stage_steps.clone(),
         },

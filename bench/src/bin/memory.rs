@@ -51,6 +51,7 @@ fn one_forecast(config: &WorldModelConfig) {
         context: random_normal(1, [1, p, config.latent_channels, h, w], 0.0, 1.0, &device),
         actions: random_normal(2, [1, p + n, 5], 0.0, 0.5, &device),
         base: None,
+        warped: random_normal(3, [1, n, config.latent_channels, h, w], 0.0, 1.0, &device),
     };
     let schedule = NoiseSchedule::new(&config.diffusion);
     let sampler = DdimConfig::deterministic(1, 0);
@@ -74,7 +75,14 @@ fn one_training_step(config: &WorldModelConfig) {
     let levels: Vec<f32> = (0..p + n)
         .map(|f| if f < p { 0.0 } else { 500.0 })
         .collect();
-    let output = model.forward(Tensor::cat(vec![context, noisy], 1), actions, &levels, n);
+    let warped = random_normal(7, [1, n, config.latent_channels, h, w], 0.0, 1.0, &device);
+    let output = model.forward(
+        Tensor::cat(vec![context, noisy], 1),
+        actions,
+        &levels,
+        n,
+        Some(warped),
+    );
     let loss = (output - target).abs().mean();
     let _gradients = loss.backward();
 }

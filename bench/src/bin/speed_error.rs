@@ -113,16 +113,12 @@ fn cache_timings(root: &Path) -> Vec<(usize, f64, f64)> {
     let [h, w] = config.latent_size;
     let (p, n) = (config.context_frames, config.future_frames);
     // Timing does not depend on the values: a standardised context, ordinary actions.
+    let warped = random_normal(3, [1, n, config.latent_channels, h, w], 0.0, 1.0, &device);
     let inputs = ForecastInputs {
         context: random_normal(1, [1, p, config.latent_channels, h, w], 0.0, 1.0, &device),
         actions: random_normal(2, [1, p + n, 5], 0.0, 0.5, &device),
-        base: Some(random_normal(
-            3,
-            [1, n, config.latent_channels, h, w],
-            0.0,
-            1.0,
-            &device,
-        )),
+        base: Some(warped.clone()),
+        warped,
     };
     let schedule = NoiseSchedule::new(&config.diffusion);
     STEPS

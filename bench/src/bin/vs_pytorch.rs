@@ -251,6 +251,13 @@ fn profile(stage: &str, runs: usize) {
             &device,
         );
         let actions = random_normal(6, [1, frames, ACTION_FEATURES], 0.0, 1.0, &device);
+        let warped = random_normal(
+            7,
+            [1, config.future_frames, config.latent_channels, h, w],
+            0.0,
+            1.0,
+            &device,
+        );
         let levels = vec![0.0; frames];
         let started = std::time::Instant::now();
         for _ in 0..runs {
@@ -259,6 +266,7 @@ fn profile(stage: &str, runs: usize) {
                 actions.clone(),
                 &levels,
                 config.future_frames,
+                Some(warped.clone()),
             );
             std::hint::black_box(host(out));
         }
@@ -346,7 +354,16 @@ fn dump_world_model(dir: &Path, root: &Path, device: &Device) -> Value {
     write("wm_time", sinusoidal_1d(frames, config.width, device));
     write_npy(dir, "wm_latents", &latents.dims(), &host(latents.clone()));
     write_npy(dir, "wm_actions", &actions.dims(), &host(actions.clone()));
-    let output = model.forward(latents.clone(), actions.clone(), &levels, future);
+    // The future frames' ego-warped current latent, which a model with `ego_warp_input` embeds.
+    let warped = random_normal(7, [1, future, channels, height, width], 0.0, 1.0, device);
+    write_npy(dir, "wm_warped", &warped.dims(), &host(warped.clone()));
+    let output = model.forward(
+        latents.clone(),
+        actions.clone(),
+        &levels,
+        future,
+        Some(warped.clone()),
+    );
     write_npy(dir, "wm_output", &output.dims(), &host(output));
     std::fs::write(
         dir.join("world_model.json"),
@@ -362,7 +379,13 @@ fn dump_world_model(dir: &Path, root: &Path, device: &Device) -> Value {
     for threads in [1usize, 2] {
         let ms = on_threads(threads, || {
             time_runs(5, || {
-                let out = model.forward(latents.clone(), actions.clone(), &levels, future);
+                let out = model.forward(
+                    latents.clone(),
+                    actions.clone(),
+                    &levels,
+                    future,
+                    Some(warped.clone()),
+                );
                 std::hint::black_box(host(out.sum().reshape([1]))[0])
             })
             .0

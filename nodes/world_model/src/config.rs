@@ -8,7 +8,7 @@ use bevworld_types::ConfigProblem;
 use bevworld_types::problem::{require_count, require_positive};
 use serde::{Deserialize, Serialize};
 
-use crate::ego_warp::LatentGrid;
+use crate::ego_warp::{EgoWarpBase, LatentGrid};
 
 /// What the network predicts for the noisy future frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -89,6 +89,16 @@ pub struct WorldModelConfig {
     /// the static world is moved by the known ego motion, and the network spends itself on
     /// what changes.
     pub residual_over_ego_warp: bool,
+    /// With the residual, the warp's weight in the base falls linearly with the horizon, from
+    /// 1 now to 0 at this many seconds: near frames keep the moved static world, far ones,
+    /// where the warp's detail is more often wrong than right, are predicted as latents.
+    /// Absent: the full warp at every horizon.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ego_warp_fade_s: Option<f64>,
+    /// Each future frame's tokens also embed the current latent warped into that frame, so the
+    /// network sees where the static world will be. Absent: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub ego_warp_input: bool,
     /// The BEV extent of the latent, metres, as the tokenizer's `bev` (for the ego warp).
     pub x_range: [f64; 2],
     pub y_range: [f64; 2],
@@ -159,6 +169,14 @@ impl WorldModelConfig {
         }
     }
 
+    /// What the diffused future frames are the residual over.
+    pub fn ego_warp_base(&self) -> EgoWarpBase {
+        EgoWarpBase {
+            residual: self.residual_over_ego_warp,
+            fade_s: self.ego_warp_fade_s,
+        }
+    }
+
     /// Metres per latent cell along x and y.
     pub fn cell_size(&self) -> [f64; 2] {
         [
@@ -185,6 +203,15 @@ impl WorldModelConfig {
         }
         require_positive(&mut problems, "mlp_ratio", self.mlp_ratio);
         require_positive(&mut problems, "frame_interval_s", self.frame_interval_s);
+        if let Some(fade) = self.ego_warp_fade_s {
+            require_positive(&mut problems, "ego_warp_fade_s", fade);
+            if !self.residual_over_ego_warp {
+                problems.push(ConfigProblem::new(
+                    "ego_warp_fade_s",
+                    "is set, but residual_over_ego_warp is false: there is no warp to fade",
+                ));
+            }
+        }
         for (axis, size) in ["height", "width"].iter().zip(self.latent_size) {
             if self.patch > 0 && (size == 0 || !size.is_multiple_of(self.patch)) {
                 problems.push(ConfigProblem::new(

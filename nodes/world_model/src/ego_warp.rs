@@ -7,6 +7,27 @@ use bevworld_types::EgoAction;
 use bevworld_types::action::wrap_angle;
 use bevworld_types::pose::{Pose, yaw_of};
 
+/// What a residual model's future frames are the residual over: the ego-warped current
+/// latent, weighted by the horizon (`WorldModelConfig::ego_warp_fade_s`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EgoWarpBase {
+    /// Diffuse `x − w·warp` (true) or the latent itself (false, `w = 0`).
+    pub residual: bool,
+    /// `w` falls linearly from 1 now to 0 at this horizon; `None`: 1 at every horizon.
+    pub fade_s: Option<f64>,
+}
+
+impl EgoWarpBase {
+    /// The warp's weight `w` in the base of a frame `horizon_s` seconds ahead.
+    pub fn weight(&self, horizon_s: f64) -> f32 {
+        match (self.residual, self.fade_s) {
+            (false, _) => 0.0,
+            (true, None) => 1.0,
+            (true, Some(fade)) => (1.0 - horizon_s / fade).clamp(0.0, 1.0) as f32,
+        }
+    }
+}
+
 /// A planar rigid motion: the pose of ego frame `b` in ego frame `a`'s coordinates
 /// (`a_from_b`), read right to left.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -212,5 +233,33 @@ mod tests {
         let action = EgoAction::between(&g_a, 0, &g_b, 500_000).unwrap();
         let from_action = PlanarMotion::of_action(&action);
         assert!((from_action.x - a_b.x).abs() < 1e-9 && (from_action.y - a_b.y).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_warp_fades_linearly_to_zero_at_its_horizon_and_stays_there() {
+        let fade = EgoWarpBase {
+            residual: true,
+            fade_s: Some(4.0),
+        };
+        for (horizon, weight) in [
+            (0.0, 1.0),
+            (0.5, 0.875),
+            (1.0, 0.75),
+            (3.0, 0.25),
+            (4.0, 0.0),
+            (6.0, 0.0),
+        ] {
+            assert!((fade.weight(horizon) - weight).abs() < 1e-6, "{horizon} s");
+        }
+        let full = EgoWarpBase {
+            residual: true,
+            fade_s: None,
+        };
+        assert_eq!(full.weight(3.0), 1.0);
+        let latent = EgoWarpBase {
+            residual: false,
+            fade_s: None,
+        };
+        assert_eq!(latent.weight(0.5), 0.0);
     }
 }

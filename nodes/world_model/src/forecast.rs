@@ -19,6 +19,9 @@ pub struct ForecastInputs {
     /// The current latent warped into each future ego frame, which the network's residual is
     /// added to (`residual_over_ego_warp`); `None` for a model that predicts the latent itself.
     pub base: Option<Tensor<5>>, // [B, N, C', H, W]
+    /// The current latent warped into each future ego frame, all of it: what a model with
+    /// `ego_warp_input` embeds.
+    pub warped: Tensor<5>, // [B, N, C', H, W]
 }
 
 /// Draws `[B, N, C', H, W]` standard normal noise from `seed`, on the host.
@@ -91,6 +94,7 @@ pub fn forecast_with(
                 x.clone(),
                 future_actions.clone(),
                 &vec![level as f32; batch * future],
+                Some(inputs.warped.clone()),
             ),
             None => {
                 let levels: Vec<f32> = (0..batch)
@@ -100,7 +104,13 @@ pub fn forecast_with(
                     })
                     .collect();
                 let frames = Tensor::cat(vec![inputs.context.clone(), x.clone()], 1);
-                model.forward(frames, inputs.actions.clone(), &levels, future)
+                model.forward(
+                    frames,
+                    inputs.actions.clone(),
+                    &levels,
+                    future,
+                    Some(inputs.warped.clone()),
+                )
             }
         };
         let (clean, noise) = clean_and_noise(schedule, target, x, output, level);

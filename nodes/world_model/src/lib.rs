@@ -29,7 +29,7 @@ pub mod weights;
 pub use actions::{ACTION_FEATURES, ActionStats};
 pub use config::{DiffusionConfig, ScheduleKind, Target, WorldModelConfig};
 pub use ddim::{DdimConfig, Spacing};
-pub use ego_warp::{LatentGrid, PlanarMotion, warp_latent};
+pub use ego_warp::{EgoWarpBase, LatentGrid, PlanarMotion, warp_latent};
 pub use forecast::{ContextPasses, ForecastInputs, forecast, forecast_with};
 pub use manoeuvre::Manoeuvre;
 pub use model::{ContextCache, WorldModel};

@@ -8,6 +8,9 @@
 //!   are clean (t = 0), the future frames carry the noise level they were given.
 //! - Blocks of causal temporal attention, spatial attention and an MLP, each modulated by
 //!   adaLN-Zero (`block.rs`).
+//! - With `ego_warp_input`, each future frame's tokens also embed the current latent warped
+//!   into that frame by the ego motion (`ego_warp.rs`): the network sees where the static
+//!   world will be instead of working out a sub-token resampling from the actions.
 //! - A final adaLN-modulated linear layer, zero at initialisation, maps the future frames'
 //!   tokens back to patches: the prediction (ε, v or x₀, `diffusion.target`) for them only.
 
@@ -26,6 +29,8 @@ use crate::patch::{patchify, unpatchify};
 #[derive(Module, Debug)]
 pub struct WorldModel {
     patch_embed: Linear,
+    /// The future frames' ego-warped current latent, embedded like a frame (`ego_warp_input`).
+    warp_embed: Option<Linear>,
     condition: Condition,
     blocks: Vec<SpatialTemporalBlock>,
     final_modulation: AdaLnModulation,
@@ -49,6 +54,9 @@ impl WorldModelConfig {
         let condition_width = condition.width();
         WorldModel {
             patch_embed: LinearConfig::new(self.patch_values(), self.width).init(device),
+            warp_embed: self
+                .ego_warp_input
+                .then(|| LinearConfig::new(self.patch_values(), self.width).init(device)),
             condition,
             blocks: (0..self.depth)
                 .map(|_| {
@@ -93,9 +101,11 @@ impl ContextCache {
 }
 
 impl WorldModel {
-    /// Patch tokens of frames `first..first + F` of a sequence, with their 2D and 1D positions.
-    // latents: [B, F, C', H, W] -> [B, F, L, D]
-    fn embed(&self, latents: Tensor<5>, first: usize) -> Tensor<4> {
+    /// Patch tokens of frames `first..first + F` of a sequence, with their 2D and 1D positions;
+    /// with `warped` (the last N frames' ego-warped current latent) and `ego_warp_input`, the
+    /// last N frames' tokens also embed it.
+    // latents: [B, F, C', H, W], warped: [B, N, C', H, W] -> [B, F, L, D]
+    fn embed(&self, latents: Tensor<5>, first: usize, warped: Option<Tensor<5>>) -> Tensor<4> {
         let [_, frames, _, _, _] = latents.dims();
         let device = latents.device();
         let [rows, columns] = [self.size[0] / self.patch, self.size[1] / self.patch];
@@ -105,24 +115,40 @@ impl WorldModel {
             sinusoidal_2d(rows, columns, width, &device)
         }); // [L, D]
         let time = sinusoidal_1d(first + frames, width, &device).narrow(0, first, frames); // [F, D]
-        self.patch_embed.forward(patchify(latents, self.patch)) // [B, F, L, D]
+        let x = self.patch_embed.forward(patchify(latents, self.patch)) // [B, F, L, D]
             + space.reshape([1, 1, tokens, width])
-            + time.reshape([1, frames, 1, width])
+            + time.reshape([1, frames, 1, width]);
+        match (&self.warp_embed, warped) {
+            (Some(warp_embed), Some(warped)) => {
+                let [batch, future, _, _, _] = warped.dims();
+                let w = warp_embed.forward(patchify(warped, self.patch)); // [B, N, L, D]
+                let w = if future < frames {
+                    let clean = Tensor::zeros([batch, frames - future, tokens, width], &device);
+                    Tensor::cat(vec![clean, w], 1)
+                } else {
+                    w
+                };
+                x + w
+            }
+            _ => x,
+        }
     }
 
     /// Embeds every frame's tokens and runs the blocks, returning the tokens of all frames.
     /// `levels` holds each frame's noise level, row-major `[B, F]` (0: a clean condition
-    /// frame).
+    /// frame); `warped`, the last N frames' ego-warped current latent (used with
+    /// `ego_warp_input`).
     // latents: [B, F, C', H, W], actions: [B, F, 5] -> tokens [B, F, L, D], condition [B, F, c]
     pub fn encode(
         &self,
         latents: Tensor<5>,
         actions: Tensor<3>,
         levels: &[f32],
+        warped: Option<Tensor<5>>,
     ) -> (Tensor<4>, Tensor<3>) {
         let [_, frames, _, _, _] = latents.dims();
         let causal = causal_mask(frames, &latents.device());
-        let x = self.embed(latents, 0);
+        let x = self.embed(latents, 0, warped);
         let condition = self.condition.forward(actions, levels);
         let x = self.blocks.iter().fold(x, |x, block| {
             block.forward(x, condition.clone(), causal.clone())
@@ -137,7 +163,7 @@ impl WorldModel {
         let [batch, frames, _, _, _] = context.dims();
         let causal = causal_mask(frames, &context.device());
         let condition = self.condition.forward(actions, &vec![0.0; batch * frames]);
-        let mut x = self.embed(context, 0);
+        let mut x = self.embed(context, 0, None);
         let mut keys_values = Vec::with_capacity(self.blocks.len());
         for block in &self.blocks {
             let (next, kv) = block.forward_after(x, condition.clone(), None, causal.clone());
@@ -152,20 +178,22 @@ impl WorldModel {
 
     /// The prediction for N future frames that follow the condition frames of `cache`: the
     /// same as `forward` on the whole sequence, without running the condition frames again.
-    // future: [B, N, C', H, W], actions: [B, N, 5], levels: B·N -> [B, N, C', H, W]
+    // future: [B, N, C', H, W], actions: [B, N, 5], levels: B·N, warped: [B, N, C', H, W]
+    //   -> [B, N, C', H, W]
     pub fn forward_future(
         &self,
         cache: &ContextCache,
         future: Tensor<5>,
         actions: Tensor<3>,
         levels: &[f32],
+        warped: Option<Tensor<5>>,
     ) -> Tensor<5> {
         let [_, frames, _, _, _] = future.dims();
         let all = cache.frames + frames;
         // The rows of the future frames in the causal mask of the whole sequence.
         let mask = causal_mask(all, &future.device()).narrow(0, cache.frames, frames); // [N, P+1+N]
         let condition = self.condition.forward(actions, levels);
-        let mut x = self.embed(future, cache.frames);
+        let mut x = self.embed(future, cache.frames, warped);
         for (block, prefix) in self.blocks.iter().zip(&cache.keys_values) {
             x = block
                 .forward_after(x, condition.clone(), Some(prefix), mask.clone())
@@ -174,17 +202,20 @@ impl WorldModel {
         self.head(x, condition)
     }
 
-    /// The prediction for the last `future` frames.
-    // latents: [B, F, C', H, W], actions: [B, F, 5], levels: B·F -> [B, future, C', H, W]
+    /// The prediction for the last `future` frames; `warped` is their ego-warped current
+    /// latent, which a model with `ego_warp_input` embeds (and any other ignores).
+    // latents: [B, F, C', H, W], actions: [B, F, 5], levels: B·F, warped: [B, future, C', H, W]
+    //   -> [B, future, C', H, W]
     pub fn forward(
         &self,
         latents: Tensor<5>,
         actions: Tensor<3>,
         levels: &[f32],
         future: usize,
+        warped: Option<Tensor<5>>,
     ) -> Tensor<5> {
         let [_, frames, _, _, _] = latents.dims();
-        let (x, condition) = self.encode(latents, actions, levels);
+        let (x, condition) = self.encode(latents, actions, levels, warped);
         let first = frames - future;
         self.head(
             x.narrow(1, first, future),

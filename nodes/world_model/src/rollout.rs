@@ -40,9 +40,12 @@ pub enum RolloutError {
 #[derive(Clone, Debug, PartialEq)]
 pub struct RolloutOutput {
     pub future: Vec<Vec<f32>>,
-    /// The current latent moved into each future ego frame by the future actions (for a
-    /// residual model, what its sampled residual was added to).
+    /// The current latent moved into each future ego frame by the future actions.
     pub ego_warped: Vec<Vec<f32>>,
+    /// What the sampled frames were added to: each warped frame times its horizon's weight
+    /// (`EgoWarpBase`), all of it for a residual model without a fade, none of it (the
+    /// latent statistics' mean) for a model that predicts the latent itself.
+    pub base: Vec<Vec<f32>>,
 }
 
 /// A model ready to forecast.
@@ -99,11 +102,18 @@ impl Rollout<'_> {
             standardised.extend(values);
         }
         let current = standardised[(p - 1) * grid.len()..].to_vec();
+        let ego_warp_base = self.config.ego_warp_base();
+        let mut warped = Vec::with_capacity(n * grid.len());
         let mut base = Vec::with_capacity(n * grid.len());
         let mut current_from_future = PlanarMotion::default();
+        let mut horizon_s = 0.0;
         for action in future_actions {
             current_from_future = current_from_future.then(&PlanarMotion::of_action(action));
-            base.extend(warp_latent(&current, &grid, &current_from_future, 0.0));
+            horizon_s += action.dt_s;
+            let frame = warp_latent(&current, &grid, &current_from_future, 0.0);
+            let weight = ego_warp_base.weight(horizon_s);
+            base.extend(frame.iter().map(|v| weight * v));
+            warped.extend(frame);
         }
         let actions: Vec<f32> = context_actions
             .iter()
@@ -121,7 +131,8 @@ impl Rollout<'_> {
                 })
                 .collect()
         };
-        let ego_warped = destandardised(&base);
+        let ego_warped = destandardised(&warped);
+        let base_destandardised = destandardised(&base);
         let inputs = ForecastInputs {
             context: Tensor::from_data(TensorData::new(standardised, shape(p)), &self.device),
             actions: Tensor::from_data(
@@ -132,6 +143,7 @@ impl Rollout<'_> {
                 .config
                 .residual_over_ego_warp
                 .then(|| Tensor::from_data(TensorData::new(base, shape(n)), &self.device)),
+            warped: Tensor::from_data(TensorData::new(warped, shape(n)), &self.device),
         };
         let schedule = NoiseSchedule::new(&self.config.diffusion);
         let values: Vec<f32> = forecast(self.model, self.config, &schedule, &inputs, sampler)?
@@ -141,6 +153,7 @@ impl Rollout<'_> {
         Ok(RolloutOutput {
             future: destandardised(&values),
             ego_warped,
+            base: base_destandardised,
         })
     }
 }

@@ -273,7 +273,7 @@ fn flex_and_wgpu_agree_on_the_world_model() {
         );
         let actions =
             Tensor::<3>::from_data(TensorData::new(actions.clone(), [1, frames, 5]), device);
-        values(model.forward(latents, actions, &levels, c.future_frames))
+        values(model.forward(latents, actions, &levels, c.future_frames, None))
     };
     let cpu = run(&Device::flex());
     let gpu = run(&Device::wgpu(DeviceKind::DefaultDevice));

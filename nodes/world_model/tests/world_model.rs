@@ -90,7 +90,13 @@ fn the_tiny_model_predicts_its_future_frames_only() {
     assert_eq!(c.token_grid(), [16, 16]);
     let model = seeded_init(0, &device(), |d| c.init(d));
     let (latents, actions) = inputs(&c, 2, 3);
-    let out = model.forward(latents, actions, &levels(&c, 2, 500.0), c.future_frames);
+    let out = model.forward(
+        latents,
+        actions,
+        &levels(&c, 2, 500.0),
+        c.future_frames,
+        None,
+    );
     assert_eq!(out.dims(), [2, 6, 4, 64, 64]);
 }
 
@@ -105,7 +111,7 @@ fn the_paper_model_runs_at_batch_one() {
     c.future_frames = 1;
     let model = seeded_init(0, &device(), |d| c.init(d));
     let (latents, actions) = inputs(&c, 1, 4);
-    let out = model.forward(latents, actions, &levels(&c, 1, 10.0), 1);
+    let out = model.forward(latents, actions, &levels(&c, 1, 10.0), 1, None);
     assert_eq!(out.dims(), [1, 1, 4, 96, 96]);
 }
 
@@ -117,7 +123,13 @@ fn a_frame_never_changes_the_output_of_an_earlier_frame() {
     let frames = c.context_frames + c.future_frames;
     let all = c.future_frames + c.context_frames;
     // Predict every frame, so that condition frames' outputs are checked too.
-    let before = model.forward(latents.clone(), actions.clone(), &levels(&c, 1, 300.0), all);
+    let before = model.forward(
+        latents.clone(),
+        actions.clone(),
+        &levels(&c, 1, 300.0),
+        all,
+        None,
+    );
     for k in 1..frames {
         let mut changed = latents.clone();
         let bump = random_tensor(99 + k as u64, [1, 1, 4, 16, 16], -3.0, 3.0, &device());
@@ -130,7 +142,7 @@ fn a_frame_never_changes_the_output_of_an_earlier_frame() {
             [0..1, k..k + 1, 0..5],
             changed_actions.narrow(1, k, 1).add_scalar(2.0),
         );
-        let after = model.forward(changed, changed_actions, &levels(&c, 1, 300.0), all);
+        let after = model.forward(changed, changed_actions, &levels(&c, 1, 300.0), all, None);
         let earlier = |t: Tensor<5>| values(t.narrow(1, 0, k));
         assert_eq!(
             earlier(before.clone()),
@@ -155,7 +167,13 @@ fn every_block_starts_as_the_identity_and_the_model_at_zero() {
         assert_eq!(values(out), values(x.clone()));
     }
     let (latents, actions) = inputs(&c, 1, 8);
-    let out = model.forward(latents, actions, &levels(&c, 1, 900.0), c.future_frames);
+    let out = model.forward(
+        latents,
+        actions,
+        &levels(&c, 1, 900.0),
+        c.future_frames,
+        None,
+    );
     assert!(values(out).iter().all(|v| *v == 0.0));
 }
 
@@ -168,7 +186,8 @@ fn forecast_inputs(c: &WorldModelConfig, seed: u64) -> ForecastInputs {
     ForecastInputs {
         context,
         actions,
-        base: Some(base),
+        base: Some(base.clone()),
+        warped: base,
     }
 }
 
@@ -248,6 +267,13 @@ fn configs_that_cannot_work_are_refused_naming_the_field() {
         error.to_string().contains("latent_size") && error.to_string().contains("wm.yaml"),
         "{error}"
     );
+    let fade_without_residual = text.replace(
+        "residual_over_ego_warp: true",
+        "residual_over_ego_warp: false\nego_warp_fade_s: 3.0",
+    );
+    let error = WorldModelConfig::from_yaml(&fade_without_residual, "wm.yaml")
+        .expect_err("a fade with nothing to fade");
+    assert!(error.to_string().contains("ego_warp_fade_s"), "{error}");
     let heads = text.replace("heads: 4", "heads: 3");
     assert!(
         WorldModelConfig::from_yaml(&heads, "wm.yaml")
@@ -294,9 +320,9 @@ fn weights_load_only_with_their_config_and_their_tokenizer() {
         values(
             loaded
                 .model
-                .forward(latents.clone(), actions.clone(), &lv, 3)
+                .forward(latents.clone(), actions.clone(), &lv, 3, None)
         ),
-        values(model.forward(latents, actions, &lv, 3))
+        values(model.forward(latents, actions, &lv, 3, None))
     );
     match load_weights(
         &c,
@@ -328,12 +354,35 @@ fn weights_load_only_with_their_config_and_their_tokenizer() {
 
 #[test]
 fn the_context_cache_changes_no_prediction_and_no_forecast() {
-    let c = small();
+    let mut c = small();
+    c.ego_warp_input = true;
     let model = trained_like(&c, 12);
     let (latents, actions) = inputs(&c, 2, 30);
     let (p, n) = (c.context_frames, c.future_frames);
+    let [h, w] = c.latent_size;
+    let warped = random_normal(31, [2, n, 4, h, w], 0.0, 1.0, &device());
     let level = 400.0;
-    let whole = model.forward(latents.clone(), actions.clone(), &levels(&c, 2, level), n);
+    let whole = model.forward(
+        latents.clone(),
+        actions.clone(),
+        &levels(&c, 2, level),
+        n,
+        Some(warped.clone()),
+    );
+    let without_warp = model.forward(
+        latents.clone(),
+        actions.clone(),
+        &levels(&c, 2, level),
+        n,
+        None,
+    );
+    assert!(
+        values((whole.clone() - without_warp).abs())
+            .into_iter()
+            .fold(0.0, f32::max)
+            > 1e-3,
+        "the warp the future frames embed changes their prediction"
+    );
     let cache = model.context(
         latents.clone().narrow(1, 0, p),
         actions.clone().narrow(1, 0, p),
@@ -344,6 +393,7 @@ fn the_context_cache_changes_no_prediction_and_no_forecast() {
         latents.narrow(1, p, n),
         actions.narrow(1, p, n),
         &vec![level; 2 * n],
+        Some(warped),
     );
     let gap = values((whole.clone() - cached).abs())
         .into_iter()

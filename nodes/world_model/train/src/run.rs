@@ -49,6 +49,9 @@ pub struct Overrides {
     /// be sampled.
     pub target: Option<Target>,
     pub residual_over_ego_warp: Option<bool>,
+    /// `ego_warp_fade_s`: `Some(None)` removes the fade.
+    pub ego_warp_fade_s: Option<Option<f64>>,
+    pub ego_warp_input: Option<bool>,
     /// The stages kept, numbered from 1 (e.g. `[3]`: the long-sequence stage alone).
     pub stages: Option<Vec<usize>>,
     /// Steps of each kept stage.
@@ -70,6 +73,12 @@ pub fn effective_configs(
     }
     if let Some(residual) = set.residual_over_ego_warp {
         model.residual_over_ego_warp = residual;
+    }
+    if let Some(fade) = set.ego_warp_fade_s {
+        model.ego_warp_fade_s = fade;
+    }
+    if let Some(input) = set.ego_warp_input {
+        model.ego_warp_input = input;
     }
     if let Some(kept) = &set.stages {
         let mut stages = Vec::new();

@@ -312,7 +312,7 @@ impl WorldModelTrainer {
             context: stage.context,
             future: stage.future,
             grid: self.grid,
-            residual: self.model_config.residual_over_ego_warp,
+            base: self.model_config.ego_warp_base(),
         };
         let sequences = match stage.rate {
             Rate::Sweeps => &self.data.sweeps,
@@ -357,7 +357,13 @@ impl WorldModelTrainer {
                     })
                     .collect();
                 let frames = Tensor::cat(vec![inputs.context, noisy], 1);
-                let output = model.forward(frames, inputs.actions, &frame_levels, shape.future);
+                let output = model.forward(
+                    frames,
+                    inputs.actions,
+                    &frame_levels,
+                    shape.future,
+                    Some(inputs.warped),
+                );
                 // The mean over the batch: each micro-batch's mean weighted by its share.
                 let loss = (output - wanted)
                     .abs()
@@ -445,7 +451,8 @@ pub fn score_windows(
             let inputs = ForecastInputs {
                 context: batch.context,
                 actions: batch.actions,
-                base: shape.residual.then_some(batch.warped),
+                base: shape.base.residual.then_some(batch.base),
+                warped: batch.warped,
             };
             let predicted: Vec<f32> = forecast(model, config, &schedule, &inputs, sampler)?
                 .into_data()

@@ -3,7 +3,9 @@
 //! frame (the ego-warp baseline, and the base a residual model adds to), and the target the
 //! network learns to sample: the future latents, or their residual over that warp.
 
-use bevworld_world_model::{ActionStats, LatentGrid, PlanarMotion, WorldModelConfig, warp_latent};
+use bevworld_world_model::{
+    ActionStats, EgoWarpBase, LatentGrid, PlanarMotion, WorldModelConfig, warp_latent,
+};
 use burn::prelude::*;
 
 use crate::data::Sequence;
@@ -14,7 +16,8 @@ pub struct WindowShape {
     pub context: usize,
     pub future: usize,
     pub grid: LatentGrid,
-    pub residual: bool,
+    /// What the future frames are diffused as the residual over.
+    pub base: EgoWarpBase,
 }
 
 /// A window on the host, standardised.
@@ -26,6 +29,8 @@ pub struct WindowValues {
     pub future: Vec<f32>,
     /// `[future, C, H, W]`: the current latent warped into each future ego frame.
     pub warped: Vec<f32>,
+    /// `[future]`: the warp's weight in each future frame's base (`EgoWarpBase::weight`).
+    pub base_weights: Vec<f32>,
     /// `[context + future, 5]`, normalised.
     pub actions: Vec<f32>,
 }
@@ -37,7 +42,7 @@ impl WindowShape {
             context: config.context_frames,
             future: config.future_frames,
             grid: config.latent_grid(),
-            residual: config.residual_over_ego_warp,
+            base: config.ego_warp_base(),
         }
     }
 }
@@ -58,8 +63,11 @@ impl WindowValues {
         }
         let mut future = Vec::with_capacity(shape.future * shape.grid.len());
         let mut warped = Vec::with_capacity(shape.future * shape.grid.len());
+        let mut base_weights = Vec::with_capacity(shape.future);
         for frame in &sequence.frames[start + shape.context..start + frames] {
             future.extend_from_slice(&frame.latent);
+            let horizon_s = (frame.time_us - current.time_us) as f64 * 1e-6;
+            base_weights.push(shape.base.weight(horizon_s));
             let current_from_future =
                 PlanarMotion::between(&current.global_from_ego, &frame.global_from_ego);
             warped.extend(warp_latent(
@@ -81,22 +89,29 @@ impl WindowValues {
             context,
             future,
             warped,
+            base_weights,
             actions,
         }
     }
 
-    /// What the diffusion samples for the future frames: the latents, or with `residual`
-    /// their difference from the warp.
-    pub fn diffused(&self, residual: bool) -> Vec<f32> {
-        if residual {
-            self.future
-                .iter()
-                .zip(&self.warped)
-                .map(|(f, w)| f - w)
-                .collect()
-        } else {
-            self.future.clone()
-        }
+    /// What a residual model adds its sample to: each future frame's warp times its weight.
+    pub fn base(&self) -> Vec<f32> {
+        let frame = self.warped.len() / self.base_weights.len().max(1);
+        self.warped
+            .chunks(frame.max(1))
+            .zip(&self.base_weights)
+            .flat_map(|(warped, &weight)| warped.iter().map(move |v| weight * v))
+            .collect()
+    }
+
+    /// What the diffusion samples for the future frames: the latents less the base (the
+    /// latents themselves where the base's weight is 0).
+    pub fn diffused(&self) -> Vec<f32> {
+        self.future
+            .iter()
+            .zip(self.base())
+            .map(|(f, b)| f - b)
+            .collect()
     }
 }
 
@@ -104,7 +119,10 @@ impl WindowValues {
 pub struct WindowBatch {
     pub context: Tensor<5>,  // [B, context, C, H, W]
     pub diffused: Tensor<5>, // [B, future, C, H, W]
-    pub warped: Tensor<5>,   // [B, future, C, H, W]
+    /// What the sampled residual is added to (`WindowValues::base`).
+    pub base: Tensor<5>, // [B, future, C, H, W]
+    /// The current latent warped into each future frame (`ego_warp_input`).
+    pub warped: Tensor<5>, // [B, future, C, H, W]
     pub actions: Tensor<3>,  // [B, context + future, 5]
 }
 
@@ -123,7 +141,8 @@ impl WindowBatch {
         };
         Self {
             context: frames(shape.context, gather(&|w| w.context.clone())),
-            diffused: frames(shape.future, gather(&|w| w.diffused(shape.residual))),
+            diffused: frames(shape.future, gather(&|w| w.diffused())),
+            base: frames(shape.future, gather(&|w| w.base())),
             warped: frames(shape.future, gather(&|w| w.warped.clone())),
             actions: Tensor::from_data(
                 TensorData::new(

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use bevworld_sinks::npy::npy_f32;
 use bevworld_types::{LatentStats, Pose};
-use bevworld_world_model::{ActionStats, LatentGrid, WorldModelConfig};
+use bevworld_world_model::{ActionStats, EgoWarpBase, LatentGrid, WorldModelConfig};
 use bevworld_world_model_train::config::{KEYFRAMES_INDEX, SWEEPS_INDEX};
 use bevworld_world_model_train::{
     DataError, Expected, HorizonScores, TrainWorldModelConfig, TrainingData, WindowShape,
@@ -218,7 +218,10 @@ fn ego_warp_is_exact_where_the_world_stands_still_and_copy_last_is_not() {
         context: 2,
         future: 3,
         grid: grid(),
-        residual: true,
+        base: EgoWarpBase {
+            residual: true,
+            fade_s: None,
+        },
     };
     let window = WindowValues::cut(&sequences.sequences[0], 1, &shape, &actions);
     let plane = H * H;
@@ -239,8 +242,27 @@ fn ego_warp_is_exact_where_the_world_stands_still_and_copy_last_is_not() {
         assert!(scores.ego_warp[k] < scores.copy_last[k], "{scores:?}");
     }
     // The residual the network samples is zero wherever the warp saw the cell.
-    let residual = window.diffused(true);
+    let residual = window.diffused();
     assert!(residual[..H - 1].iter().all(|v| v.abs() < 1e-5));
+
+    // A base that fades to 0 at 1 s: frames 0.5 s apart weigh the warp 0.5, then 0 and 0.
+    let faded = WindowShape {
+        base: EgoWarpBase {
+            residual: true,
+            fade_s: Some(1.0),
+        },
+        ..shape
+    };
+    let window = WindowValues::cut(&sequences.sequences[0], 1, &faded, &actions);
+    assert_eq!(window.base_weights, vec![0.5, 0.0, 0.0]);
+    let frame = C * plane;
+    let (base, diffused) = (window.base(), window.diffused());
+    for at in [0, 7, frame - 1] {
+        assert!((base[at] - 0.5 * window.warped[at]).abs() < 1e-6);
+        assert!((diffused[at] - (window.future[at] - 0.5 * window.warped[at])).abs() < 1e-6);
+    }
+    assert!(base[frame..].iter().all(|v| *v == 0.0));
+    assert_eq!(diffused[frame..], window.future[frame..]);
 }
 
 fn train_config(dir: &Path) -> TrainWorldModelConfig {
@@ -280,7 +302,10 @@ fn training_data(dir: &Path) -> (TrainingData, ActionStats) {
         context: 2,
         future: 2,
         grid: grid(),
-        residual: true,
+        base: EgoWarpBase {
+            residual: true,
+            fade_s: None,
+        },
     };
     let validation = vec![WindowValues::cut(
         &keyframes.sequences[0],
@@ -427,7 +452,7 @@ fn one_step_lowers_the_loss_on_a_fixed_batch() {
     let levels = [0.0, 0.0, 300.0, 300.0, 0.0, 0.0, 700.0, 700.0];
     let loss = |model: &bevworld_world_model::WorldModel| {
         let frames = Tensor::cat(vec![context.clone(), noisy.clone()], 1);
-        (model.forward(frames, actions.clone(), &levels, 2) - wanted.clone())
+        (model.forward(frames, actions.clone(), &levels, 2, None) - wanted.clone())
             .abs()
             .mean()
     };
@@ -441,4 +466,51 @@ fn one_step_lowers_the_loss_on_a_fixed_batch() {
         value_after < value_before,
         "{value_before} -> {value_after}"
     );
+}
+
+#[test]
+fn ablation_overrides_reach_the_model_config_and_inconsistent_ones_are_refused() {
+    use bevworld_world_model_train::{Overrides, TrainRequest, effective_configs};
+    let dir = tempfile::tempdir().expect("dir");
+    let text = std::fs::read_to_string(repo().join("configs/models/train-world-model-tiny.yaml"))
+        .expect("read")
+        .replace(
+            "model: configs/models/world-model-tiny.yaml",
+            &format!(
+                "model: {}",
+                repo()
+                    .join("configs/models/world-model-tiny.yaml")
+                    .display()
+            ),
+        );
+    let config = dir.path().join("train.yaml");
+    std::fs::write(&config, text).expect("write");
+    let request = |overrides: Overrides| TrainRequest {
+        config: config.clone(),
+        out: dir.path().join("run"),
+        resume: false,
+        until: None,
+        threads: None,
+        log_every: 10,
+        command: "test".into(),
+        overrides,
+    };
+    let (_, shipped) = effective_configs(&request(Overrides::default())).expect("shipped");
+    assert!(!shipped.ego_warp_input && shipped.ego_warp_fade_s.is_none());
+    let (_, model) = effective_configs(&request(Overrides {
+        ego_warp_input: Some(true),
+        ego_warp_fade_s: Some(Some(2.0)),
+        ..Overrides::default()
+    }))
+    .expect("both switches");
+    assert!(model.ego_warp_input);
+    assert_eq!(model.ego_warp_base().weight(1.0), 0.5);
+    let error = effective_configs(&request(Overrides {
+        residual_over_ego_warp: Some(false),
+        ego_warp_fade_s: Some(Some(2.0)),
+        ..Overrides::default()
+    }))
+    .expect_err("a fade without a residual");
+    assert!(error.to_string().contains("ego_warp_fade_s"), "{error}");
+    assert!(!dir.path().join("run").exists(), "refused before writing");
 }
