@@ -13,18 +13,32 @@ run() {
     rm -rf "runs/ablation-$name"
     $BIN train world-model --out "runs/ablation-$name" "$@" | tail -6
 }
-# Stage 3 alone, 250 steps: the v target over the ego-warp residual (shipped), the paper's
-# epsilon target, and v on the latent itself.
+# Stage 3 alone, 250 steps: the v target over the ego-warp residual (shipped), the same with
+# the warp as an input of the future frames, the paper's epsilon target, v on the latent
+# itself, and the warp's weight in the base faded to 0 at 2 s and at 3 s.
 run v-residual --stages 3 --stage-steps 250
+run v-residual-warp-input --stages 3 --stage-steps 250 --ego-warp-input true
 run epsilon-residual --stages 3 --stage-steps 250 --target epsilon
 run v-latent --stages 3 --stage-steps 250 --residual false
+run fade2 --stages 3 --stage-steps 250 --ego-warp-fade 2
+run fade3 --stages 3 --stage-steps 250 --ego-warp-fade 3
 # All three stages against stage 3 alone, at about the same time (the three-stage split
 # costs what 250 stage-3 steps do).
 run three-stages --stage-steps 100,80,150
-for name in v-residual epsilon-residual v-latent three-stages; do
+for name in v-residual-warp-input v-residual epsilon-residual v-latent fade2 fade3 three-stages; do
     for steps in 1 4 50; do
         echo "== $name, DDIM $steps steps"
         $BIN eval world-model --weights "runs/ablation-$name/world-model-tiny.bpk" \
             --model "runs/ablation-$name/model-config.yaml" --steps "$steps" --stride 4
     done
+done
+# The rendered cost of a lower latent L1: Chamfer, PSNR and SSIM on the validation scenes for
+# the warp-input and fade-2 runs, through the forecast graph with their weights.
+for name in v-residual-warp-input fade2; do
+    sed -e "s|configs/models/world-model-tiny.yaml|runs/ablation-$name/model-config.yaml|" \
+        -e "s|nodes/world_model/weights/world-model-tiny.bpk|runs/ablation-$name/world-model-tiny.bpk|" \
+        configs/graphs/forecast.yaml > "runs/ablation-$name/forecast.yaml"
+    echo "== $name, rendered"
+    $BIN eval forecast --data out/synth-wm-val --graph "runs/ablation-$name/forecast.yaml" \
+        --out "runs/ablation-$name/eval-forecast"
 done
