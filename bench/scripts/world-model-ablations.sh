@@ -33,8 +33,8 @@ for name in v-residual-warp-input v-residual epsilon-residual v-latent fade2 fad
     done
 done
 # The rendered cost of a lower latent L1: Chamfer, PSNR and SSIM on the validation scenes for
-# the warp-input and fade-2 runs, through the forecast graph with their weights.
-for name in v-residual-warp-input fade2; do
+# the plain residual, warp-input and fade-2 runs, through the forecast graph with their weights.
+for name in v-residual v-residual-warp-input fade2; do
     sed -e "s|configs/models/world-model-tiny.yaml|runs/ablation-$name/model-config.yaml|" \
         -e "s|nodes/world_model/weights/world-model-tiny.bpk|runs/ablation-$name/world-model-tiny.bpk|" \
         configs/graphs/forecast.yaml > "runs/ablation-$name/forecast.yaml"
