@@ -120,3 +120,54 @@ fn a_left_and_a_right_turn_forecast_different_futures() {
         "the network's part: left vs right {own_actions:.4}, two seeds {own_seeds:.4}"
     );
 }
+
+/// Ablation flags that cannot work are refused before the latent caches are exported (minutes
+/// on a fresh machine), naming the flag or the config field.
+#[test]
+fn bad_ablation_flags_are_refused_before_any_cache_is_exported() {
+    let dir = tempfile::tempdir().expect("dir");
+    let config = std::fs::read_to_string(repo().join("configs/models/train-world-model-tiny.yaml"))
+        .expect("read")
+        .replace("out/world-model/", &format!("{}/", dir.path().display()));
+    let config_path = dir.path().join("train.yaml");
+    std::fs::write(&config_path, config).expect("write");
+    let run = |extra: &[&str]| {
+        let mut args: Vec<String> = [
+            "train",
+            "world-model",
+            "--config",
+            &config_path.display().to_string(),
+            "--out",
+            &dir.path().join("run").display().to_string(),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        args.extend(extra.iter().map(|s| s.to_string()));
+        bevworld_owned(&args)
+    };
+    for (flags, named) in [
+        (&["--ego-warp-fade", "soon"][..], "--ego-warp-fade"),
+        (&["--ego-warp-fade=-1"][..], "ego_warp_fade_s"),
+        (
+            &["--residual", "false", "--ego-warp-fade", "2"][..],
+            "ego_warp_fade_s",
+        ),
+    ] {
+        let output = run(flags);
+        assert!(!output.status.success(), "{flags:?} was accepted");
+        assert!(
+            text(&output).contains(named),
+            "{flags:?}: {}",
+            text(&output)
+        );
+    }
+    assert!(
+        !dir.path().join("latents-train").exists(),
+        "no cache was exported"
+    );
+    assert!(
+        !dir.path().join("run").exists(),
+        "no run folder was written"
+    );
+}

@@ -286,17 +286,6 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
     if args.until == Some(0) {
         bail!("--until 0: a run of no steps would ship untrained weights");
     }
-    for cache in [&config.train, &config.val] {
-        super::latent_cache::ensure(cache, &config.tokenizer_model, &config.tokenizer_weights)?;
-    }
-    if args.prepare_only {
-        println!(
-            "latent caches ready: {} and {}",
-            config.train.latents.display(),
-            config.val.latents.display()
-        );
-        return Ok(ExitCode::SUCCESS);
-    }
     let request = wm::TrainRequest {
         config: args.config.clone(),
         out: args.out.clone(),
@@ -336,6 +325,20 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
             stage_steps: args.stage_steps.clone(),
         },
     };
+    // The flags are checked against the configs before the caches are exported, which takes
+    // minutes on a fresh machine.
+    wm::effective_configs(&request)?;
+    for cache in [&config.train, &config.val] {
+        super::latent_cache::ensure(cache, &config.tokenizer_model, &config.tokenizer_weights)?;
+    }
+    if args.prepare_only {
+        println!(
+            "latent caches ready: {} and {}",
+            config.train.latents.display(),
+            config.val.latents.display()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
     let (_, device) = bevworld_device::from_env()?;
     let mut bar = WorldModelBar::default();
     let summary = match wm::train(&request, &device, &mut bar) {
