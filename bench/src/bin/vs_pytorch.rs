@@ -104,20 +104,21 @@ fn dump(dir: &Path) {
     );
     let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
     let (nc, nl) = (rays.camera.len(), rays.lidar.len());
-    write_npy(dir, "camera_origins", &[nc, 3], &flat(&rays.camera.origins));
-    write_npy(
-        dir,
-        "camera_directions",
-        &[nc, 3],
-        &flat(&rays.camera.directions),
-    );
-    write_npy(dir, "lidar_origins", &[nl, 3], &flat(&rays.lidar.origins));
-    write_npy(
-        dir,
-        "lidar_directions",
-        &[nl, 3],
-        &flat(&rays.lidar.directions),
-    );
+    for (sensor, set) in [("camera", &rays.camera), ("lidar", &rays.lidar)] {
+        let n = set.len();
+        write_npy(
+            dir,
+            &format!("{sensor}_origins"),
+            &[n, 3],
+            &flat(&set.origins),
+        );
+        write_npy(
+            dir,
+            &format!("{sensor}_directions"),
+            &[n, 3],
+            &flat(&set.directions),
+        );
+    }
     write_npy(dir, "depths", &[scene_depths.len()], &scene_depths);
 
     // Our outputs, for the reference to check itself against before it times anything.
