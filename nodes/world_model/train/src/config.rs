@@ -29,6 +29,18 @@ pub struct StageConfig {
     pub context: usize,
     pub future: usize,
     pub steps: usize,
+    /// Every `stride`-th frame of the rate: 6 at sweeps gives 2 Hz windows that start at
+    /// every sweep, six times the windows of the keyframes at the same frame interval.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub stride: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn is_one(stride: &usize) -> bool {
+    *stride == 1
 }
 
 /// A latent cache: `export_features` output of a synthetic set, at 12 Hz (`index.json`) and
@@ -180,6 +192,7 @@ impl TrainWorldModelConfig {
             require_count(&mut problems, &field("context"), stage.context);
             require_count(&mut problems, &field("future"), stage.future);
             require_count(&mut problems, &field("steps"), stage.steps);
+            require_count(&mut problems, &field("stride"), stage.stride);
         }
         require_count(&mut problems, "validation.windows", self.validation.windows);
         require_count(&mut problems, "validation.every", self.validation.every);

@@ -111,6 +111,30 @@ impl LatentSequences {
             .collect()
     }
 
+    /// Every `stride`-th frame: each sequence becomes `stride` interleaved ones (offsets 0 to
+    /// `stride − 1`), so that a window of consecutive frames may start at any frame.
+    pub fn strided(&self, stride: usize) -> LatentSequences {
+        let stride = stride.max(1);
+        let sequences = self
+            .sequences
+            .iter()
+            .flat_map(|sequence| {
+                (0..stride.min(sequence.frames.len())).map(move |offset| Sequence {
+                    scene: sequence.scene.clone(),
+                    frames: sequence.frames[offset..]
+                        .iter()
+                        .step_by(stride)
+                        .cloned()
+                        .collect(),
+                })
+            })
+            .collect();
+        LatentSequences {
+            sequences,
+            gaps: self.gaps,
+        }
+    }
+
     /// Windows of `frames` consecutive frames that also have the frame before them (for the
     /// first frame's action): `(sequence, first frame)`.
     pub fn windows(&self, frames: usize) -> Vec<(usize, usize)> {

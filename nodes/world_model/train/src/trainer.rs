@@ -113,12 +113,13 @@ pub enum TrainError {
         value: f64,
     },
     #[error(
-        "stage '{stage}': no window of {frames} consecutive {rate:?} frames in the training cache"
+        "stage '{stage}': no window of {frames} consecutive {rate:?} frames (stride {stride}) in the training cache"
     )]
     NoWindows {
         stage: String,
         frames: usize,
         rate: Rate,
+        stride: usize,
     },
     #[error("no validation window of {frames} consecutive keyframes")]
     NoValidationWindows { frames: usize },
@@ -146,6 +147,16 @@ pub struct TrainingData {
     pub validation: Vec<WindowValues>,
 }
 
+impl TrainingData {
+    /// The sequences at `rate`.
+    pub fn at_rate(&self, rate: Rate) -> &LatentSequences {
+        match rate {
+            Rate::Sweeps => &self.sweeps,
+            Rate::Keyframes => &self.keyframes,
+        }
+    }
+}
+
 /// One window of a step, drawn before any work starts so that the draws, and so the run, do
 /// not depend on how the work is spread over threads.
 #[derive(Clone, Debug)]
@@ -163,6 +174,8 @@ pub struct WorldModelTrainer {
     grid: LatentGrid,
     action_stats: ActionStats,
     data: TrainingData,
+    /// Each stage's strided copy of its rate's sequences; `None` at stride 1.
+    stage_sequences: Vec<Option<LatentSequences>>,
     /// Windows of each stage: `(sequence, first frame)`.
     stage_windows: Vec<Vec<(usize, usize)>>,
     device: Device,
@@ -192,18 +205,19 @@ impl WorldModelTrainer {
     ) -> Result<Self, TrainError> {
         let grid = model_config.latent_grid();
         let mut stage_windows = Vec::new();
+        let mut stage_sequences = Vec::new();
         for stage in &config.stages {
             let frames = stage.context + stage.future;
-            let sequences = match stage.rate {
-                Rate::Sweeps => &data.sweeps,
-                Rate::Keyframes => &data.keyframes,
-            };
-            let windows = sequences.windows(frames);
+            let sequences = data.at_rate(stage.rate);
+            let strided = (stage.stride > 1).then(|| sequences.strided(stage.stride));
+            let windows = strided.as_ref().unwrap_or(sequences).windows(frames);
+            stage_sequences.push(strided);
             if windows.is_empty() {
                 return Err(TrainError::NoWindows {
                     stage: stage.name.clone(),
                     frames,
                     rate: stage.rate,
+                    stride: stage.stride,
                 });
             }
             stage_windows.push(windows);
@@ -222,6 +236,7 @@ impl WorldModelTrainer {
             grid,
             action_stats,
             data,
+            stage_sequences,
             stage_windows,
             device: device.clone(),
             model,
@@ -292,6 +307,7 @@ impl WorldModelTrainer {
                 stage: "after the last stage".into(),
                 frames: 0,
                 rate: Rate::Keyframes,
+                stride: 1,
             });
         };
         let stage = stage.clone();
@@ -314,10 +330,9 @@ impl WorldModelTrainer {
             grid: self.grid,
             base: self.model_config.ego_warp_base(),
         };
-        let sequences = match stage.rate {
-            Rate::Sweeps => &self.data.sweeps,
-            Rate::Keyframes => &self.data.keyframes,
-        };
+        let sequences = self.stage_sequences[stage_index]
+            .as_ref()
+            .unwrap_or(self.data.at_rate(stage.rate));
         let (model, schedule, stats, device) = (
             &self.model,
             &self.schedule,

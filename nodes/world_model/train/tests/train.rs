@@ -10,7 +10,7 @@ use bevworld_types::{LatentStats, Pose};
 use bevworld_world_model::{ActionStats, EgoWarpBase, LatentGrid, WorldModelConfig};
 use bevworld_world_model_train::config::{KEYFRAMES_INDEX, SWEEPS_INDEX};
 use bevworld_world_model_train::{
-    DataError, Expected, HorizonScores, TrainWorldModelConfig, TrainingData, WindowShape,
+    DataError, Expected, HorizonScores, Rate, TrainWorldModelConfig, TrainingData, WindowShape,
     WindowValues, WorldModelTrainer, load_sequences,
 };
 use burn::prelude::*;
@@ -159,6 +159,48 @@ fn a_scene_with_a_time_gap_is_split_never_stitched() {
 }
 
 #[test]
+fn a_strided_stage_draws_every_sixth_sweep_from_any_start() {
+    let dir = tempfile::tempdir().expect("dir");
+    write_cache(
+        dir.path(),
+        "index.json",
+        &drive("a", 13, 83_333, 6.0),
+        "abc",
+    );
+    let sweeps = load_sequences(dir.path(), "index.json", &expected()).expect("load");
+    let strided = sweeps.strided(6);
+    // Offsets 0 to 5: frames {0, 6, 12}, {1, 7}, ..., {5, 11}.
+    let tokens: Vec<Vec<String>> = strided
+        .sequences
+        .iter()
+        .map(|s| s.frames.iter().map(|f| f.token.clone()).collect())
+        .collect();
+    assert_eq!(tokens[0], vec!["a-0", "a-6", "a-12"]);
+    assert_eq!(tokens[5], vec!["a-5", "a-11"]);
+    assert_eq!(tokens.len(), 6);
+    assert_eq!(strided.frames(), 13, "every frame once");
+    for sequence in &strided.sequences {
+        for pair in sequence.frames.windows(2) {
+            assert_eq!(pair[1].time_us - pair[0].time_us, 6 * 83_333);
+        }
+    }
+    // The action into a strided frame spans 0.5 s at 6 m/s: 3 m.
+    let action = strided.sequences[1].action_into(1).expect("action");
+    assert!((action.speed_mps - 6.0).abs() < 1e-6, "{action:?}");
+    // Two-frame windows with the frame before them: only offset 0 has three frames.
+    assert_eq!(strided.windows(2), vec![(0, 1)]);
+    assert_eq!(sweeps.strided(1).frames(), 13);
+
+    let mut config = train_config(dir.path());
+    config.stages[2].stride = 0;
+    let problems = config.problems();
+    assert!(
+        problems.iter().any(|p| p.field == "stages[2].stride"),
+        "{problems:?}"
+    );
+}
+
+#[test]
 fn bad_caches_are_refused_naming_the_file() {
     let dir = tempfile::tempdir().expect("dir");
     let mut frames = drive("a", 4, 500_000, 2.0);
@@ -281,6 +323,8 @@ fn train_config(dir: &Path) -> TrainWorldModelConfig {
     config.stages[1].context = 2;
     config.stages[1].future = 2;
     config.stages[1].steps = 3;
+    config.stages[2].rate = Rate::Keyframes;
+    config.stages[2].stride = 1;
     config.stages[2].context = 2;
     config.stages[2].future = 2;
     config.stages[2].steps = 400;
