@@ -15,7 +15,8 @@ run() {
 }
 # Stage 3 alone, 250 steps: the v target over the ego-warp residual (shipped), the same with
 # the warp as an input of the future frames, the paper's epsilon target, v on the latent
-# itself, and the warp's weight in the base faded to 0 at 2 s and at 3 s.
+# itself, and the warp's weight in the base faded to 0 at 2 s and at 3 s. The committed stage 3
+# draws from every sixth sweep (`stride: 6`); the page's figures predate it (keyframe windows).
 run v-residual --stages 3 --stage-steps 250
 run v-residual-warp-input --stages 3 --stage-steps 250 --ego-warp-input true
 run epsilon-residual --stages 3 --stage-steps 250 --target epsilon
