@@ -12,6 +12,7 @@ fn a_synthetic_set_is_made_once_and_a_folder_of_other_scenes_is_refused() {
         scenes: 1,
         seconds: 0.5,
         camera_size: "112x64".into(),
+        branch: None,
     };
     set.ensure().expect("a missing set is made");
     let left: Vec<_> = std::fs::read_dir(dir.path())
@@ -63,4 +64,55 @@ fn a_synthetic_set_is_made_once_and_a_folder_of_other_scenes_is_refused() {
         "{message}"
     );
     assert!(!dir.path().join("other").exists(), "nothing made");
+}
+
+#[test]
+fn a_branched_set_holds_one_scene_per_manoeuvre_and_a_plain_set_is_not_taken_for_it() {
+    use bevworld_sensors::synth::Branch;
+    use bevworld_types::Manoeuvre;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let branched = SynthSet {
+        dir: dir.path().join("branches"),
+        seed: 7,
+        scenes: 1,
+        seconds: 1.0,
+        camera_size: "112x64".into(),
+        branch: Some(Branch {
+            at_s: 0.5,
+            manoeuvres: vec![Manoeuvre::Left, Manoeuvre::Right],
+        }),
+    };
+    branched.ensure().expect("a missing branched set is made");
+    let dataset =
+        bevworld_sensors::Dataset::open(&branched.dir, &Default::default()).expect("the set opens");
+    let mut names = dataset.scene_names();
+    names.dedup();
+    assert_eq!(names, ["synth-000007-left", "synth-000007-right"]);
+    branched.ensure().expect("the set it made is accepted");
+
+    // The same folder read as the plain scene of that seed: another set, refused.
+    let plain = SynthSet {
+        branch: None,
+        ..branched.clone()
+    };
+    let message = plain
+        .ensure()
+        .expect_err("branches are not the scene")
+        .to_string();
+    assert!(
+        message.contains("holds 2 scene(s) (synth-000007-left … synth-000007-right)")
+            && message.contains("1 scene(s) from seed 7 (synth-000007)"),
+        "{message}"
+    );
+    let parsed: SynthSet = serde_saphyr::from_str(
+        "{dir: d, seed: 7, scenes: 1, seconds: 1.0, camera_size: 112x64, branch: {at_s: 0.5, manoeuvres: [left, right]}}",
+    )
+    .expect("the YAML form");
+    assert_eq!(parsed.branch, branched.branch);
+    let unknown = serde_saphyr::from_str::<SynthSet>(
+        "{dir: d, seed: 7, scenes: 1, seconds: 1.0, camera_size: 112x64, branch: {at_s: 0.5, manoeuvres: [reverse]}}",
+    )
+    .expect_err("no such manoeuvre")
+    .to_string();
+    assert!(unknown.contains("reverse"), "{unknown}");
 }

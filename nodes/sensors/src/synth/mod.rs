@@ -19,4 +19,7 @@ pub mod writer;
 pub use in_place::{InPlace, generate_in_place};
 pub use scene::SceneWorld;
 pub use set::{SynthSet, SynthSetError};
-pub use writer::{Branch, ImageEncoding, SynthConfig, SynthSummary, VERSION, generate, scene_name};
+pub use writer::{
+    Branch, ImageEncoding, SynthConfig, SynthSummary, VERSION, generate, scene_name,
+    scene_variant_name,
+};

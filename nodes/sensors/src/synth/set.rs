@@ -5,12 +5,13 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use super::{SynthConfig, generate_in_place, scene_name};
+use super::{Branch, SynthConfig, generate_in_place};
 use crate::source::parse_size;
 use crate::{Dataset, DatasetOptions};
 
 /// `scenes` scenes from seed `seed` on (scene k uses seed + k), made with `bevworld synth` if
-/// `dir` does not exist yet.
+/// `dir` does not exist yet; with `branch`, each scene once per manoeuvre
+/// (`bevworld synth --branch-at`), named `<scene>-<manoeuvre>`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SynthSet {
@@ -19,6 +20,8 @@ pub struct SynthSet {
     pub scenes: usize,
     pub seconds: f64,
     pub camera_size: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub branch: Option<Branch>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -42,17 +45,18 @@ impl SynthSet {
             path: self.dir.clone(),
             message,
         };
+        let (camera_width, camera_height) =
+            parse_size(&self.camera_size).map_err(|e| error(format!("camera_size: {e}")))?;
+        let config = SynthConfig {
+            seed: self.seed,
+            scenes: self.scenes,
+            seconds: self.seconds,
+            camera_width,
+            camera_height,
+            branch: self.branch.clone(),
+            ..Default::default()
+        };
         if !self.dir.exists() {
-            let (camera_width, camera_height) =
-                parse_size(&self.camera_size).map_err(|e| error(format!("camera_size: {e}")))?;
-            let config = SynthConfig {
-                seed: self.seed,
-                scenes: self.scenes,
-                seconds: self.seconds,
-                camera_width,
-                camera_height,
-                ..Default::default()
-            };
             // Another run may make a set in the same folder at once: `generate_in_place` keeps
             // whichever copy lands first, and the check below holds it to this set's scenes.
             generate_in_place(&self.dir, &config, |_, _| {}).map_err(|e| error(e.to_string()))?;
@@ -61,14 +65,14 @@ impl SynthSet {
             .map_err(|e| error(e.to_string()))?;
         let mut held: Vec<&str> = dataset.scene_names();
         held.dedup();
-        let wanted: Vec<String> = self.seeds().map(scene_name).collect();
+        let wanted = config.scene_names();
         if held != wanted {
             return Err(error(format!(
                 "holds {} scene(s) ({}), but the config's set is {} scene(s) from seed {} ({}): \
                  remove the folder to make it anew, or give the set another `dir`",
                 held.len(),
                 span(&held),
-                self.scenes,
+                wanted.len(),
                 self.seed,
                 span(&wanted),
             )));

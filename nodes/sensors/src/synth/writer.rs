@@ -50,8 +50,10 @@ pub struct SynthConfig {
 }
 
 /// Branches of every scene: up to `at_s` seconds the ego drives its script; from there on,
-/// in each branch, it drives one manoeuvre through the bicycle model.
-#[derive(Clone, Debug, PartialEq)]
+/// in each branch, it drives one manoeuvre through the bicycle model. In a training config:
+/// `branch: {at_s: 2.0, manoeuvres: [keep, left, right, faster, slower]}`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Branch {
     pub at_s: f64,
     pub manoeuvres: Vec<Manoeuvre>,
@@ -142,6 +144,14 @@ impl SynthConfig {
         problems
     }
 
+    /// The names of the scenes it writes, in order.
+    pub fn scene_names(&self) -> Vec<String> {
+        self.scene_variants()
+            .into_iter()
+            .map(|(seed, branch)| scene_variant_name(seed, branch.map(|(_, m)| m)))
+            .collect()
+    }
+
     /// The scenes to write: each seed, or each seed's branches, in order.
     pub fn scene_variants(&self) -> Vec<(u64, Option<(f64, Manoeuvre)>)> {
         let seeds = (0..self.scenes as u64).map(|k| self.seed.saturating_add(k));
@@ -219,6 +229,15 @@ pub fn scene_name(seed: u64) -> String {
     format!("synth-{seed:06}")
 }
 
+/// The name of the scene made from `seed`, or of its branch under `manoeuvre`
+/// (`<scene>-<manoeuvre>`, which `eval control` groups by).
+pub fn scene_variant_name(seed: u64, manoeuvre: Option<Manoeuvre>) -> String {
+    match manoeuvre {
+        None => scene_name(seed),
+        Some(m) => format!("{}-{}", scene_name(seed), m.name()),
+    }
+}
+
 /// Generates the dataset under `out`. `progress(frames_done, frames_total)` is called per frame.
 pub fn generate(
     out: &Path,
@@ -271,7 +290,7 @@ pub fn generate(
             ),
             Some((at_s, manoeuvre)) => (
                 branch_key(seed, manoeuvre),
-                format!("{}-{}", scene_name(seed), manoeuvre.name()),
+                scene_variant_name(seed, Some(manoeuvre)),
                 SceneWorld::new(seed, config.seconds, config.agents).branched(at_s, manoeuvre),
             ),
         };
