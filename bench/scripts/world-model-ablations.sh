@@ -23,9 +23,9 @@ run epsilon-residual --stages 3 --stage-steps 250 --target epsilon
 run v-latent --stages 3 --stage-steps 250 --residual false
 run fade2 --stages 3 --stage-steps 250 --ego-warp-fade 2
 run fade3 --stages 3 --stage-steps 250 --ego-warp-fade 3
-# All three stages against stage 3 alone, at about the same time (the three-stage split
-# costs what 250 stage-3 steps do).
-run three-stages --stage-steps 100,80,150
+# The paper's three stages against stage 3 alone, at about the same time (the three-stage
+# split costs what 250 stage-3 steps do).
+run three-stages --stages 1,2,3 --stage-steps 100,80,150
 for name in v-residual-warp-input v-residual epsilon-residual v-latent fade2 fade3 three-stages; do
     for steps in 1 4 50; do
         echo "== $name, DDIM $steps steps"

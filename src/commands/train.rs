@@ -17,8 +17,8 @@ pub enum TrainCommand {
     /// Train the BEV tokenizer.
     Tokenizer(Box<TrainTokenizerArgs>),
     /// Train the world model (latent BEV sequence diffusion) on the tokenizer's latents of
-    /// synthetic scenes: the paper's three stages in one run. The latent caches are exported
-    /// first if missing.
+    /// synthetic scenes: the paper's three stages, then one on counterfactual branches, in one
+    /// run. The latent caches are exported first if missing.
     WorldModel(TrainWorldModelArgs),
 }
 
@@ -327,16 +327,25 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
     };
     // The flags are checked against the configs before the caches are exported, which takes
     // minutes on a fresh machine.
-    wm::effective_configs(&request)?;
-    for cache in [&config.train, &config.val] {
+    let (effective, _) = wm::effective_configs(&request)?;
+    // The branched cache only where a stage of this run reads it.
+    let branches = effective
+        .branches
+        .as_ref()
+        .filter(|_| effective.stages.iter().any(|s| s.with_branches));
+    let caches: Vec<_> = [&config.train, &config.val]
+        .into_iter()
+        .chain(branches)
+        .collect();
+    for cache in &caches {
         super::latent_cache::ensure(cache, &config.tokenizer_model, &config.tokenizer_weights)?;
     }
     if args.prepare_only {
-        println!(
-            "latent caches ready: {} and {}",
-            config.train.latents.display(),
-            config.val.latents.display()
-        );
+        let ready: Vec<String> = caches
+            .iter()
+            .map(|c| c.latents.display().to_string())
+            .collect();
+        println!("latent caches ready: {}", ready.join(", "));
         return Ok(ExitCode::SUCCESS);
     }
     let (_, device) = bevworld_device::from_env()?;

@@ -1,6 +1,6 @@
 //! The world model's training config (`configs/models/train-world-model-*.yaml`): the model,
 //! the tokenizer whose latents it learns, the latent caches and the synthetic sets they are
-//! exported from, the optimiser, the paper's three stages, and validation.
+//! exported from, the optimiser, the paper's three stages (and a counterfactual one of ours), and validation.
 
 use std::path::{Path, PathBuf};
 
@@ -33,6 +33,10 @@ pub struct StageConfig {
     /// every sweep, six times the windows of the keyframes at the same frame interval.
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub stride: usize,
+    /// Also draw windows from the branched cache (`branches`): the same contexts driven under
+    /// every manoeuvre, so that the action, not the road, decides where the future goes.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub with_branches: bool,
 }
 
 fn one() -> usize {
@@ -82,6 +86,11 @@ pub struct TrainWorldModelConfig {
     /// (`bevworld eval world-model --split test`).
     #[serde(default)]
     pub test: Option<CacheConfig>,
+    /// Training scenes branched into manoeuvres (`synth.branch`): what would have happened
+    /// under each action from one context, which no log records. Read by the stages
+    /// `with_branches`; the action statistics stay the training cache's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub branches: Option<CacheConfig>,
     pub seed: u64,
     /// Windows per optimiser step.
     pub batch: usize,
@@ -184,7 +193,7 @@ impl TrainWorldModelConfig {
         if self.stages.is_empty() {
             problems.push(ConfigProblem::new(
                 "stages",
-                "empty (accepted: 1 to 3 stages)",
+                "empty (accepted: 1 or more stages)",
             ));
         }
         for (i, stage) in self.stages.iter().enumerate() {
@@ -193,10 +202,31 @@ impl TrainWorldModelConfig {
             require_count(&mut problems, &field("future"), stage.future);
             require_count(&mut problems, &field("steps"), stage.steps);
             require_count(&mut problems, &field("stride"), stage.stride);
+            if stage.with_branches && self.branches.is_none() {
+                problems.push(ConfigProblem::new(
+                    field("with_branches"),
+                    "true, but the config names no `branches` cache",
+                ));
+            }
         }
         require_count(&mut problems, "validation.windows", self.validation.windows);
         require_count(&mut problems, "validation.every", self.validation.every);
         require_count(&mut problems, "checkpoint_every", self.checkpoint_every);
+        if let Some(branches) = &self.branches
+            && branches
+                .synth
+                .seeds()
+                .any(|s| self.val.synth.seeds().contains(&s))
+        {
+            problems.push(ConfigProblem::new(
+                "branches.synth.seed",
+                format!(
+                    "seeds {:?} overlap the validation seeds {:?}",
+                    branches.synth.seeds(),
+                    self.val.synth.seeds()
+                ),
+            ));
+        }
         if self
             .train
             .synth

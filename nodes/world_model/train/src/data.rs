@@ -135,6 +135,19 @@ impl LatentSequences {
         }
     }
 
+    /// These sequences followed by `other`'s.
+    pub fn joined(&self, other: &LatentSequences) -> LatentSequences {
+        LatentSequences {
+            sequences: self
+                .sequences
+                .iter()
+                .chain(&other.sequences)
+                .cloned()
+                .collect(),
+            gaps: self.gaps + other.gaps,
+        }
+    }
+
     /// Windows of `frames` consecutive frames that also have the frame before them (for the
     /// first frame's action): `(sequence, first frame)`.
     pub fn windows(&self, frames: usize) -> Vec<(usize, usize)> {

@@ -1,6 +1,6 @@
 //! A whole world-model run, as `bevworld train world-model` asks for one: the configs, the
 //! tokenizer the latents must come from, the latent caches, the action statistics, the
-//! validation windows, the loop (`bevworld_training::run_loop`) over the three stages, and the
+//! validation windows, the loop (`bevworld_training::run_loop`) over the stages, and the
 //! shipped weights with their metadata and curves. The command line parses flags, exports the
 //! caches through the graph, and prints.
 
@@ -283,6 +283,13 @@ pub fn train(
     let sweeps = load_sequences(&config.train.latents, SWEEPS_INDEX, &expected)?;
     let keyframes = load_sequences(&config.train.latents, KEYFRAMES_INDEX, &expected)?;
     let val = load_sequences(&config.val.latents, KEYFRAMES_INDEX, &expected)?;
+    let branches = match &config.branches {
+        Some(cache) if config.stages.iter().any(|s| s.with_branches) => Some((
+            load_sequences(&cache.latents, SWEEPS_INDEX, &expected)?,
+            load_sequences(&cache.latents, KEYFRAMES_INDEX, &expected)?,
+        )),
+        _ => None,
+    };
     // The model runs at keyframes: its actions are normalised with the keyframe actions'
     // statistics.
     let action_stats = ActionStats::compute(keyframes.actions().iter())?;
@@ -297,8 +304,17 @@ pub fn train(
     .collect();
     let train_frames = (sweeps.frames(), keyframes.frames());
     let gaps = sweeps.gaps + keyframes.gaps + val.gaps;
+    let branched = branches
+        .as_ref()
+        .map_or(String::new(), |(sweeps, keyframes)| {
+            format!(
+                ", and {} branched sweeps ({} scenes)",
+                sweeps.frames(),
+                keyframes.sequences.len()
+            )
+        });
     progress.prepared(&format!(
-        "{} sweeps and {} keyframes to learn from ({} scenes), {} validation windows; {} gaps split",
+        "{} sweeps and {} keyframes to learn from ({} scenes){branched}, {} validation windows; {} gaps split",
         train_frames.0,
         train_frames.1,
         keyframes.sequences.len(),
@@ -330,6 +346,7 @@ pub fn train(
     let data = TrainingData {
         sweeps,
         keyframes,
+        branches,
         validation,
     };
     let mut trainer = WorldModelTrainer::new(

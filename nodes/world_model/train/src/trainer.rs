@@ -121,6 +121,10 @@ pub enum TrainError {
         rate: Rate,
         stride: usize,
     },
+    #[error(
+        "stage '{stage}' draws from the branched cache, but no branched latents were loaded (name `branches` in the config)"
+    )]
+    NoBranches { stage: String },
     #[error("no validation window of {frames} consecutive keyframes")]
     NoValidationWindows { frames: usize },
     #[error("step {step}: a micro-batch failed ({source}); the step was not applied")]
@@ -143,6 +147,8 @@ pub enum TrainError {
 pub struct TrainingData {
     pub sweeps: LatentSequences,
     pub keyframes: LatentSequences,
+    /// The branched cache's sequences, `(sweeps, keyframes)`, for the stages `with_branches`.
+    pub branches: Option<(LatentSequences, LatentSequences)>,
     /// Validation keyframe windows, cut with the model's context and future.
     pub validation: Vec<WindowValues>,
 }
@@ -154,6 +160,15 @@ impl TrainingData {
             Rate::Sweeps => &self.sweeps,
             Rate::Keyframes => &self.keyframes,
         }
+    }
+
+    /// The branched cache's sequences at `rate`, when loaded.
+    pub fn branches_at_rate(&self, rate: Rate) -> Option<&LatentSequences> {
+        let (sweeps, keyframes) = self.branches.as_ref()?;
+        Some(match rate {
+            Rate::Sweeps => sweeps,
+            Rate::Keyframes => keyframes,
+        })
     }
 }
 
@@ -174,7 +189,8 @@ pub struct WorldModelTrainer {
     grid: LatentGrid,
     action_stats: ActionStats,
     data: TrainingData,
-    /// Each stage's strided copy of its rate's sequences; `None` at stride 1.
+    /// Each stage's own sequences where they are not its rate's: strided, or joined with the
+    /// branched cache's; `None` where they are.
     stage_sequences: Vec<Option<LatentSequences>>,
     /// Windows of each stage: `(sequence, first frame)`.
     stage_windows: Vec<Vec<(usize, usize)>>,
@@ -208,10 +224,24 @@ impl WorldModelTrainer {
         let mut stage_sequences = Vec::new();
         for stage in &config.stages {
             let frames = stage.context + stage.future;
-            let sequences = data.at_rate(stage.rate);
-            let strided = (stage.stride > 1).then(|| sequences.strided(stage.stride));
-            let windows = strided.as_ref().unwrap_or(sequences).windows(frames);
-            stage_sequences.push(strided);
+            let at_rate = data.at_rate(stage.rate);
+            let joined = if stage.with_branches {
+                let branches =
+                    data.branches_at_rate(stage.rate)
+                        .ok_or_else(|| TrainError::NoBranches {
+                            stage: stage.name.clone(),
+                        })?;
+                Some(at_rate.joined(branches))
+            } else {
+                None
+            };
+            let own = if stage.stride > 1 {
+                Some(joined.as_ref().unwrap_or(at_rate).strided(stage.stride))
+            } else {
+                joined
+            };
+            let windows = own.as_ref().unwrap_or(at_rate).windows(frames);
+            stage_sequences.push(own);
             if windows.is_empty() {
                 return Err(TrainError::NoWindows {
                     stage: stage.name.clone(),
@@ -281,6 +311,11 @@ impl WorldModelTrainer {
             state: state.rng_state,
         };
         Ok(self)
+    }
+
+    /// How many windows each stage draws from.
+    pub fn windows_per_stage(&self) -> Vec<usize> {
+        self.stage_windows.iter().map(Vec::len).collect()
     }
 
     pub fn last_scores(&self) -> Option<&HorizonScores> {

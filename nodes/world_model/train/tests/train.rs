@@ -201,6 +201,93 @@ fn a_strided_stage_draws_every_sixth_sweep_from_any_start() {
 }
 
 #[test]
+fn a_stage_with_branches_draws_from_the_training_and_the_branched_scenes() {
+    let dir = tempfile::tempdir().expect("dir");
+    let (mut data, actions) = training_data(dir.path());
+    // Two branches of one context, 6 keyframes each.
+    let mut branched = drive("b-left", 6, 500_000, 2.0);
+    branched.extend(drive("b-right", 6, 500_000, 3.0));
+    let branch_dir = dir.path().join("branches");
+    write_cache(&branch_dir, SWEEPS_INDEX, &branched, "abc");
+    write_cache(&branch_dir, KEYFRAMES_INDEX, &branched, "abc");
+    let e = expected();
+    let branch_keyframes = load_sequences(&branch_dir, KEYFRAMES_INDEX, &e).expect("load");
+    assert_eq!(branch_keyframes.sequences.len(), 2);
+    let joined = data.keyframes.joined(&branch_keyframes);
+    assert_eq!(
+        joined.frames(),
+        data.keyframes.frames() + 12,
+        "every frame of both, once"
+    );
+    assert_eq!(joined.sequences[1].scene, "b-left");
+
+    let mut config = train_config(dir.path());
+    config.stages[2].with_branches = true;
+    // Named by a stage, but no cache to read it from.
+    let problems = config.problems();
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.field == "stages[2].with_branches"),
+        "{problems:?}"
+    );
+    let mut branches = config.val.clone();
+    branches.latents = branch_dir.clone();
+    config.branches = Some(branches);
+    // The validation scenes are never learnt from.
+    let problems = config.problems();
+    assert!(
+        problems.iter().any(|p| p.field == "branches.synth.seed"),
+        "{problems:?}"
+    );
+    let mut branches = config.train.clone();
+    branches.latents = branch_dir.clone();
+    config.branches = Some(branches);
+    assert!(config.problems().is_empty(), "{:?}", config.problems());
+
+    // Not loaded: refused, naming the stage.
+    let error = WorldModelTrainer::new(
+        config.clone(),
+        small_model(),
+        actions.clone(),
+        training_data(dir.path()).0,
+        &Device::flex().autodiff(),
+        1,
+    )
+    .err()
+    .expect("no branched latents");
+    assert!(
+        error.to_string().contains("stage 'long-sequence'"),
+        "{error}"
+    );
+    data.branches = Some((
+        load_sequences(&branch_dir, SWEEPS_INDEX, &e).expect("sweeps"),
+        branch_keyframes,
+    ));
+    let mut trainer = WorldModelTrainer::new(
+        config,
+        small_model(),
+        actions,
+        data,
+        &Device::flex().autodiff(),
+        1,
+    )
+    .expect("trainer");
+    // Stage 3 (keyframes, 2 + 2 frames and the frame before them): 8 - 4 = 4 windows of the
+    // training keyframes, and 6 - 4 = 2 of each branch.
+    let plain = trainer_of(dir.path(), 1, small_model()).windows_per_stage();
+    let with = trainer.windows_per_stage();
+    assert_eq!(plain[2], 4);
+    assert_eq!(
+        with[..2],
+        plain[..2],
+        "stages without branches are unchanged"
+    );
+    assert_eq!(with[2], 4 + 2 * 2);
+    trainer.train_step().expect("a step");
+}
+
+#[test]
 fn bad_caches_are_refused_naming_the_file() {
     let dir = tempfile::tempdir().expect("dir");
     let mut frames = drive("a", 4, 500_000, 2.0);
@@ -313,6 +400,9 @@ fn train_config(dir: &Path) -> TrainWorldModelConfig {
     let mut config = TrainWorldModelConfig::from_yaml(&text, "train.yaml").expect("config");
     config.train.latents = dir.join("train");
     config.val.latents = dir.join("val");
+    // The paper's three stages; the counterfactual stage has its own test.
+    config.stages.truncate(3);
+    config.branches = None;
     config.batch = 4;
     config.micro_batch = 2;
     config.optimizer.warmup_steps = 2;
@@ -361,6 +451,7 @@ fn training_data(dir: &Path) -> (TrainingData, ActionStats) {
         TrainingData {
             sweeps,
             keyframes,
+            branches: None,
             validation,
         },
         actions,
