@@ -28,6 +28,9 @@ pub enum MetricsLogError {
 pub struct MetricsLog {
     path: PathBuf,
     columns: Vec<&'static str>,
+    /// Seconds the run had trained before this session: a resumed run's times continue from
+    /// its last kept row, so `elapsed_s` is the run's training time across interruptions.
+    elapsed_before_s: f64,
 }
 
 /// One row: its step and phase (`train`, `val`, …), the seconds since the run started, and
@@ -44,7 +47,8 @@ impl MetricsLog {
     /// Opens `RUN/metrics.csv` with `columns` (which must hold `step`, `phase` and
     /// `elapsed_s`), writing the header if the file is new. On resume, rows after
     /// `resume_step` (a crashed run's steps beyond its last checkpoint) are dropped, so the
-    /// curve has no duplicates.
+    /// curve has no duplicates, and the rows appended from then on add the kept rows' last
+    /// elapsed time to their own.
     pub fn open(
         run: &Path,
         columns: &[&'static str],
@@ -55,22 +59,32 @@ impl MetricsLog {
             path: path.clone(),
             source,
         };
-        let kept = match (resume_step, std::fs::read_to_string(&path)) {
+        let (kept, elapsed_before_s) = match (resume_step, std::fs::read_to_string(&path)) {
             (Some(step), Ok(text)) => {
                 let mut lines = text.lines();
-                let at = lines
-                    .next()
-                    .and_then(|header| header.split(',').position(|c| c == STEP));
-                lines
+                let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+                let field = |line: &str, column: &str| {
+                    let at = header.iter().position(|c| *c == column)?;
+                    line.split(',').nth(at).map(str::to_string)
+                };
+                let kept: Vec<&str> = lines
                     .filter(|line| {
-                        at.and_then(|at| line.split(',').nth(at))
+                        field(line, STEP)
                             .and_then(|s| s.parse::<usize>().ok())
                             .is_some_and(|s| s <= step)
                     })
-                    .map(|l| format!("{l}\n"))
-                    .collect::<String>()
+                    .collect();
+                let elapsed = kept
+                    .iter()
+                    .filter_map(|line| field(line, ELAPSED)?.parse::<f64>().ok())
+                    .filter(|s| s.is_finite())
+                    .fold(0.0, f64::max);
+                (
+                    kept.iter().map(|l| format!("{l}\n")).collect::<String>(),
+                    elapsed,
+                )
             }
-            _ => String::new(),
+            _ => (String::new(), 0.0),
         };
         for column in [STEP, PHASE, ELAPSED] {
             if !columns.contains(&column) {
@@ -84,6 +98,7 @@ impl MetricsLog {
         Ok(Self {
             path,
             columns: columns.to_vec(),
+            elapsed_before_s,
         })
     }
 
@@ -104,7 +119,7 @@ impl MetricsLog {
             .map(|&column| match column {
                 STEP => row.step.to_string(),
                 PHASE => row.phase.to_string(),
-                ELAPSED => format!("{:.1}", row.elapsed_s),
+                ELAPSED => format!("{:.1}", self.elapsed_before_s + row.elapsed_s),
                 _ => row
                     .values
                     .iter()

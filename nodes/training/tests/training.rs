@@ -159,10 +159,31 @@ fn the_metrics_log_is_read_by_column_name_and_refuses_unknown_columns() {
     let missing = read_series(log.path(), "val", "chamfer_m2").expect_err("no such column");
     assert!(missing.to_string().contains("chamfer_m2"), "{missing}");
 
-    // Resuming at step 1 drops the rows a crashed run wrote after its checkpoint.
-    let log = MetricsLog::open(dir.path(), &columns, Some(1)).expect("reopen");
+    // Resuming at step 1 drops the rows a crashed run wrote after its checkpoint, and the
+    // resumed session's times continue from the kept rows' last (1.2 s, as written).
+    let mut log = MetricsLog::open(dir.path(), &columns, Some(1)).expect("reopen");
     let text = std::fs::read_to_string(log.path()).expect("read");
     assert_eq!(text.lines().count(), 2, "{text}");
+    log.append(&Row {
+        step: 2,
+        phase: "train",
+        elapsed_s: 0.5,
+        values: vec![("loss", 0.125)],
+    })
+    .expect("append");
+    let text = std::fs::read_to_string(log.path()).expect("read");
+    assert!(text.ends_with("train,,2,0.125000,1.7\n"), "{text}");
+    // A fresh run starts at 0 whatever the folder held.
+    let mut log = MetricsLog::open(dir.path(), &columns, None).expect("fresh");
+    log.append(&Row {
+        step: 1,
+        phase: "train",
+        elapsed_s: 0.5,
+        values: vec![],
+    })
+    .expect("append");
+    let text = std::fs::read_to_string(log.path()).expect("read");
+    assert!(text.ends_with("train,,1,,0.5\n"), "{text}");
 }
 
 #[test]
