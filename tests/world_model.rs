@@ -104,8 +104,8 @@ fn a_left_and_a_right_turn_forecast_different_futures() {
     );
     // The network's own contribution, forecast less its base. A network blind to its action
     // would give the same residual for both turns from the same noise (a difference of 0);
-    // this one's turns differ by more than a redraw of the noise moves it (measured: 0.24
-    // against 0.11, bench/results/world-model-training.md).
+    // this one's turns differ by more than a redraw of the noise moves it (measured: 0.17
+    // against 0.10, bench/results/world-model-training.md).
     let own = |o: &bevworld_world_model::rollout::RolloutOutput| -> Vec<Vec<f32>> {
         o.future
             .iter()
