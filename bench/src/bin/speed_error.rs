@@ -36,7 +36,7 @@ const READING: &str = "## Reading it
 - **The condition frames' cache** pays from two steps on: after the first pass, each step runs
   6 of the 9 frames, and the saving nears the 33% that predicts at many steps. With one step
   there is nothing to reuse: both ways run each frame once and time the same within their
-  noise (a few ms either way over runs), so `forecast` takes the single pass then and caches
+  noise (about 10 ms either way over runs on this VM), so `forecast` takes the single pass then and caches
   from two steps on (the default this table chose).
 - **Rendering only the requested horizons.** Rendering is most of a forecast's latency;
   three requested horizons instead of all six take half the render time, and a horizon's
@@ -50,9 +50,9 @@ const READING: &str = "## Reading it
   colour indistinguishable from dense, but is not faster on these 2 cores yet: its per-ray
   bookkeeping costs what the skipped samples save (issue 35's subject).
 - **Long rollouts.** Chained for 20 s (7 forecasts, each one's last frames the next one's
-  context), the forecasts' per-channel RMS stays between 0.59 and 1.25 of the training
+  context), the forecasts' per-channel RMS stays between 0.62 and 1.27 of the training
   latents' 1 (`tests/hard_cases.rs`). Their error against what really came grows from a
-  latent L1 of 0.36 at +0.5 s to 0.60 at +3 s, 0.66 at +10 s and 0.77 at +20 s, below the
+  latent L1 of 0.35 at +0.5 s to 0.59 at +3 s, 0.64 at +10 s and 0.77 at +20 s, below the
   chained ego warp and the last observed frame copied throughout, though by +20 s the
   margin over the chained warp is small (0.77 against 0.83)
   ([long-rollout.md](long-rollout.md), two held-out 24 s scenes).
