@@ -212,35 +212,29 @@ impl TrainWorldModelConfig {
         require_count(&mut problems, "validation.windows", self.validation.windows);
         require_count(&mut problems, "validation.every", self.validation.every);
         require_count(&mut problems, "checkpoint_every", self.checkpoint_every);
-        if let Some(branches) = &self.branches
-            && branches
-                .synth
-                .seeds()
-                .any(|s| self.val.synth.seeds().contains(&s))
-        {
-            problems.push(ConfigProblem::new(
-                "branches.synth.seed",
-                format!(
-                    "seeds {:?} overlap the validation seeds {:?}",
-                    branches.synth.seeds(),
-                    self.val.synth.seeds()
-                ),
-            ));
-        }
-        if self
-            .train
-            .synth
-            .seeds()
-            .any(|s| self.val.synth.seeds().contains(&s))
-        {
-            problems.push(ConfigProblem::new(
-                "val.synth.seed",
-                format!(
-                    "seeds {:?} overlap the training seeds {:?}",
-                    self.val.synth.seeds(),
-                    self.train.synth.seeds()
-                ),
-            ));
+        // The scenes learnt from and the scenes scored on never share a seed.
+        let learnt = [
+            ("training", Some(&self.train)),
+            ("branches", self.branches.as_ref()),
+        ];
+        let scored = [("val", Some(&self.val)), ("test", self.test.as_ref())];
+        for (learnt_name, learnt) in learnt.iter().filter_map(|(n, c)| Some((n, (*c)?))) {
+            for (scored_name, scored) in scored.iter().filter_map(|(n, c)| Some((n, (*c)?))) {
+                if learnt
+                    .synth
+                    .seeds()
+                    .any(|s| scored.synth.seeds().contains(&s))
+                {
+                    problems.push(ConfigProblem::new(
+                        format!("{scored_name}.synth.seed"),
+                        format!(
+                            "seeds {:?} overlap the {learnt_name} seeds {:?}",
+                            scored.synth.seeds(),
+                            learnt.synth.seeds()
+                        ),
+                    ));
+                }
+            }
         }
         problems
     }

@@ -237,13 +237,27 @@ fn a_stage_with_branches_draws_from_the_training_and_the_branched_scenes() {
     // The validation scenes are never learnt from.
     let problems = config.problems();
     assert!(
-        problems.iter().any(|p| p.field == "branches.synth.seed"),
+        problems
+            .iter()
+            .any(|p| p.field == "val.synth.seed" && p.to_string().contains("branches seeds")),
         "{problems:?}"
     );
     let mut branches = config.train.clone();
     branches.latents = branch_dir.clone();
     config.branches = Some(branches);
     assert!(config.problems().is_empty(), "{:?}", config.problems());
+    // Nor are the test scenes.
+    let mut leaky = config.clone();
+    if let Some(test) = leaky.test.as_mut() {
+        test.synth.seed = config.train.synth.seed + 1;
+    }
+    let problems = leaky.problems();
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.field == "test.synth.seed" && p.to_string().contains("training seeds")),
+        "{problems:?}"
+    );
 
     // Not loaded: refused, naming the stage.
     let error = WorldModelTrainer::new(
