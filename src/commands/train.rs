@@ -329,13 +329,9 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
     // minutes on a fresh machine.
     let (effective, _) = wm::effective_configs(&request)?;
     // The branched cache only where a stage of this run reads it.
-    let branches = effective
-        .branches
-        .as_ref()
-        .filter(|_| effective.stages.iter().any(|s| s.with_branches));
     let caches: Vec<_> = [&config.train, &config.val]
         .into_iter()
-        .chain(branches)
+        .chain(effective.branches_in_use())
         .collect();
     for cache in &caches {
         super::latent_cache::ensure(cache, &config.tokenizer_model, &config.tokenizer_weights)?;

@@ -25,8 +25,8 @@ const READING: &str = "## Reading it
 
 - **The step count.** The forecast graph samples with one DDIM step (`rollout.steps: 1`,
   chosen on the validation seeds before this page was made). One step is the fastest and the
-  most accurate, in Chamfer and in latent L1, at every horizon. The shipped model predicts v under a
-  zero-terminal-SNR schedule, sampled with trailing spacing: from pure noise at t = T its one
+  most accurate, in Chamfer and in latent L1, at every horizon. The shipped model predicts v
+  under a zero-terminal-SNR schedule, sampled with trailing spacing: from pure noise at t = T its one
   step is the conditional mean, and every further step adds back detail that a point metric
   (L1, Chamfer) charges for. No distilled or consistency model was needed for the few-step
   goal.
@@ -36,8 +36,8 @@ const READING: &str = "## Reading it
 - **The condition frames' cache** pays from two steps on: after the first pass, each step runs
   6 of the 9 frames, and the saving nears the 33% that predicts at many steps. With one step
   there is nothing to reuse: both ways run each frame once and time the same within their
-  noise (about 10 ms either way over runs on this VM), so `forecast` takes the single pass then and caches
-  from two steps on (the default this table chose).
+  noise (about 10 ms either way over runs on this VM), so `forecast` takes the single pass
+  then and caches from two steps on (the default this table chose).
 - **Rendering only the requested horizons.** Rendering is most of a forecast's latency;
   three requested horizons instead of all six take half the render time, and a horizon's
   score does not depend on which others are rendered.

@@ -1,6 +1,7 @@
 //! The world model's training config (`configs/models/train-world-model-*.yaml`): the model,
 //! the tokenizer whose latents it learns, the latent caches and the synthetic sets they are
-//! exported from, the optimiser, the paper's three stages (and a counterfactual one of ours), and validation.
+//! exported from, the optimiser, the paper's three stages (and a counterfactual one of ours),
+//! and validation.
 
 use std::path::{Path, PathBuf};
 
@@ -143,6 +144,14 @@ impl TrainWorldModelConfig {
                 problems,
             })
         }
+    }
+
+    /// The branched cache, when a stage reads it (`with_branches`): only then is it exported
+    /// and loaded.
+    pub fn branches_in_use(&self) -> Option<&CacheConfig> {
+        self.branches
+            .as_ref()
+            .filter(|_| self.stages.iter().any(|s| s.with_branches))
     }
 
     /// Steps over all stages.

@@ -283,12 +283,12 @@ pub fn train(
     let sweeps = load_sequences(&config.train.latents, SWEEPS_INDEX, &expected)?;
     let keyframes = load_sequences(&config.train.latents, KEYFRAMES_INDEX, &expected)?;
     let val = load_sequences(&config.val.latents, KEYFRAMES_INDEX, &expected)?;
-    let branches = match &config.branches {
-        Some(cache) if config.stages.iter().any(|s| s.with_branches) => Some((
+    let branches = match config.branches_in_use() {
+        Some(cache) => Some((
             load_sequences(&cache.latents, SWEEPS_INDEX, &expected)?,
             load_sequences(&cache.latents, KEYFRAMES_INDEX, &expected)?,
         )),
-        _ => None,
+        None => None,
     };
     // The model runs at keyframes: its actions are normalised with the keyframe actions'
     // statistics.

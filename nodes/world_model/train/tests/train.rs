@@ -246,6 +246,11 @@ fn a_stage_with_branches_draws_from_the_training_and_the_branched_scenes() {
     branches.latents = branch_dir.clone();
     config.branches = Some(branches);
     assert!(config.problems().is_empty(), "{:?}", config.problems());
+    // Exported and loaded only while a stage reads it.
+    assert!(config.branches_in_use().is_some());
+    let mut unread = config.clone();
+    unread.stages[2].with_branches = false;
+    assert!(unread.branches_in_use().is_none());
     // Nor are the test scenes.
     let mut leaky = config.clone();
     if let Some(test) = leaky.test.as_mut() {
