@@ -82,6 +82,7 @@ fn eval_forecast_scores_every_context_and_writes_every_file_it_promises() {
     let table: serde_json::Value = serde_json::from_slice(&output.stdout).expect("one JSON object");
     assert_eq!(table["contexts"], 7, "{table}");
     assert_eq!(table["steps"], 1);
+    assert_eq!(table["shrink"]["tau"], 0.25, "the graph's sampler is recorded: {table}");
     assert!(table["ms_per_forecast"].as_f64().expect("ms") > 0.0);
     let rows = table["horizons"].as_array().expect("horizons");
     assert_eq!(rows.len(), 2);
@@ -297,6 +298,13 @@ fn the_forecast_graph_refuses_actions_and_horizons_it_cannot_forecast() {
     assert_eq!(output.status.code(), Some(2));
     assert!(
         text(&output).contains("latent_ego_warp"),
+        "{}",
+        text(&output)
+    );
+    let output = check("rollout.shrink={tau: -0.25, fade_s: 3.0}");
+    assert_eq!(output.status.code(), Some(2));
+    assert!(
+        text(&output).contains("shrink") && text(&output).contains("tau -0.25"),
         "{}",
         text(&output)
     );

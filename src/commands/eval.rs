@@ -58,6 +58,10 @@ pub struct ForecastEvalArgs {
     /// chamfer, psnr_db, ssim and latent_l1.
     #[arg(long)]
     pub json: bool,
+    /// Further `node.key=value` overrides of the graph, as `run --set`, applied after the
+    /// command's own: e.g. `rollout.shrink=null` samples without the residual shrink.
+    #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -509,6 +513,7 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
         let list: Vec<String> = args.horizons.iter().map(f64::to_string).collect();
         set.push(format!("rollout.horizons=[{}]", list.join(",")));
     }
+    set.extend(args.set.iter().cloned());
     if scores.exists() {
         std::fs::remove_file(&scores)
             .with_context(|| format!("removing the old {}", scores.display()))?;
@@ -518,10 +523,13 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
         &std::fs::read(&scores).with_context(|| format!("reading {}", scores.display()))?,
     )
     .with_context(|| format!("parsing {}", scores.display()))?;
-    table["steps"] = params
+    let rollout = params
         .iter()
         .find(|(kind, _)| *kind == "diffusion_rollout")
-        .map_or(serde_json::Value::Null, |(_, p)| p["steps"].clone());
+        .map(|(_, p)| p);
+    for key in ["steps", "shrink"] {
+        table[key] = rollout.map_or(serde_json::Value::Null, |p| p[key].clone());
+    }
     if table["contexts"].as_u64() == Some(0) {
         bail!(
             "no context of {} has a logged future as long as the horizons: a context needs the model's history (one frame more than its condition frames) and the whole forecast after it",
@@ -534,8 +542,16 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
     if args.json {
         println!("{}", serde_json::to_string(&table)?);
     } else {
+        let shrink = match &table["shrink"] {
+            serde_json::Value::Object(s) => format!(
+                ", residual shrink tau {} fading to 0 at {} s",
+                s.get("tau").unwrap_or(&serde_json::Value::Null),
+                s.get("fade_s").unwrap_or(&serde_json::Value::Null)
+            ),
+            _ => String::new(),
+        };
         println!(
-            "{} contexts, {} DDIM step(s), {:.0} ms per forecast\n\n{}",
+            "{} contexts, {} DDIM step(s){shrink}, {:.0} ms per forecast\n\n{}",
             table["contexts"],
             table["steps"],
             table["ms_per_forecast"].as_f64().unwrap_or(f64::NAN),

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::Target;
 use crate::schedule::NoiseSchedule;
+use crate::shrink::{ResidualShrink, ShrinkError};
 
 /// Which of the T levels a run of `steps` steps visits (Lin et al. 2024, Table 2).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -43,6 +44,10 @@ pub struct DdimConfig {
     /// Seed of the initial noise and of η's noise.
     #[serde(default)]
     pub seed: u64,
+    /// After the last step, soft-threshold a residual model's sampled residual
+    /// (`shrink.rs`); `None`: the sample as drawn.
+    #[serde(default)]
+    pub shrink: Option<ResidualShrink>,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -51,6 +56,8 @@ pub enum DdimError {
     Steps { steps: usize, max: usize },
     #[error("sampler eta {0}: must be a finite number >= 0")]
     Eta(f64),
+    #[error(transparent)]
+    Shrink(#[from] ShrinkError),
 }
 
 impl DdimConfig {
@@ -62,6 +69,7 @@ impl DdimConfig {
             eta: 0.0,
             spacing: Spacing::Trailing,
             seed,
+            shrink: None,
         }
     }
 
@@ -74,6 +82,9 @@ impl DdimConfig {
         }
         if !(self.eta.is_finite() && self.eta >= 0.0) {
             return Err(DdimError::Eta(self.eta));
+        }
+        if let Some(shrink) = &self.shrink {
+            shrink.check()?;
         }
         Ok(())
     }

@@ -119,7 +119,13 @@ pub fn forecast_with(
         x = step(schedule, clean, noise, level, previous, sampler.eta, fresh);
     }
     Ok(match &inputs.base {
-        Some(base) => x + base.clone(),
+        Some(base) => {
+            let residual = match &sampler.shrink {
+                Some(shrink) => shrink.apply(x, config.frame_interval_s),
+                None => x,
+            };
+            residual + base.clone()
+        }
         None => x,
     })
 }

@@ -24,6 +24,7 @@ pub mod nodes;
 pub mod patch;
 pub mod rollout;
 pub mod schedule;
+pub mod shrink;
 pub mod weights;
 
 pub use actions::{ACTION_FEATURES, ActionStats};
@@ -36,6 +37,7 @@ pub use model::{ContextCache, WorldModel};
 pub use nodes::register;
 pub use rollout::{LoadError, LoadedWorldModel, Rollout, RolloutError, RolloutOutput};
 pub use schedule::NoiseSchedule;
+pub use shrink::ResidualShrink;
 pub use weights::{
     WeightsMeta, WorldModelWeights, WorldModelWeightsError, load_weights, save_weights,
 };

@@ -10,6 +10,7 @@ use bevworld_types::{
     BevFeatures, BevGrid, CameraChannel, CameraImage, EgoAction, Forecast, ForecastHorizon,
     ForecastMethod, FrameMeta, Intrinsics, LatentWindow, LidarPoint, PointCloud, Pose, SensorFrame,
 };
+use bevworld_world_model::ResidualShrink;
 use bevworld_world_model::nodes::diffusion_rollout::{self, DiffusionRolloutParams};
 use bevworld_world_model::nodes::future_views::FutureViews;
 use bevworld_world_model::nodes::latent_history::{HistoryShape, LatentHistory};
@@ -208,6 +209,7 @@ fn rollout_params(actions: &str, horizons: &[f64]) -> DiffusionRolloutParams {
         eta: 0.0,
         spacing: Default::default(),
         seed: 0,
+        shrink: None,
         actions: actions.into(),
         action_list: None,
         baselines: true,
@@ -263,6 +265,55 @@ fn the_rollout_refuses_unknown_manoeuvres_and_horizons_it_does_not_make() {
     let mut steps = rollout_params("keep", &[1.0]);
     steps.steps = 0;
     assert!(refusal(&steps).0.starts_with("steps"));
+    let mut eta = rollout_params("keep", &[1.0]);
+    eta.eta = -1.0;
+    assert!(refusal(&eta).0.starts_with("eta"));
+}
+
+#[test]
+fn the_rollout_refuses_a_shrink_it_cannot_apply() {
+    let shrink = |tau: f64, fade_s: f64| Some(ResidualShrink { tau, fade_s });
+    let mut params = rollout_params("keep", &[1.0]);
+    params.shrink = shrink(0.25, 3.0);
+    assert!(diffusion_rollout::plan(&params).is_ok());
+    params.shrink = shrink(-0.25, 3.0);
+    let (message, _) = refusal(&params);
+    assert!(
+        message.starts_with("shrink") && message.contains("tau"),
+        "{message}"
+    );
+    params.shrink = shrink(0.25, 0.0);
+    let (message, _) = refusal(&params);
+    assert!(
+        message.starts_with("shrink") && message.contains("fade_s"),
+        "{message}"
+    );
+    // A model that predicts latents has no residual to shrink.
+    let dir = std::env::temp_dir().join(format!("bevworld-shrink-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let text = std::fs::read_to_string(repo().join("configs/models/world-model-tiny.yaml"))
+        .expect("config");
+    let latent = text.replace(
+        "residual_over_ego_warp: true",
+        "residual_over_ego_warp: false",
+    );
+    assert_ne!(latent, text);
+    let config = dir.join("world-model-tiny.yaml");
+    std::fs::write(&config, latent).expect("write");
+    params.model.model = config;
+    params.shrink = shrink(0.25, 3.0);
+    let (message, _) = refusal(&params);
+    assert!(
+        message.starts_with("shrink") && message.contains("residual"),
+        "{message}"
+    );
+    params.shrink = None;
+    assert!(diffusion_rollout::plan(&params).is_ok());
+    // A misspelt field in the graph's YAML is named.
+    let yaml = "{model: m.yaml, weights: w.bpk, latent_stats: s.json, horizons: [1.0], shrink: {tau: 0.25, fade: 3.0}}";
+    let error = serde_saphyr::from_str::<DiffusionRolloutParams>(yaml).expect_err("unknown field");
+    assert!(error.to_string().contains("fade"), "{error}");
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// A window of the shipped model's shape, from the tokenizer's own statistics' scale.

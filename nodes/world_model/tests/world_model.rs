@@ -8,9 +8,9 @@ use bevworld_blocks::init::{random_normal, random_tensor};
 use bevworld_blocks::{causal_mask, seeded_init};
 use bevworld_world_model::weights::meta_path_for;
 use bevworld_world_model::{
-    ActionStats, ContextPasses, DdimConfig, ForecastInputs, NoiseSchedule, Spacing, WeightsMeta,
-    WorldModel, WorldModelConfig, WorldModelWeightsError, forecast, forecast_with, load_weights,
-    save_weights,
+    ActionStats, ContextPasses, DdimConfig, ForecastInputs, NoiseSchedule, ResidualShrink, Spacing,
+    WeightsMeta, WorldModel, WorldModelConfig, WorldModelWeightsError, forecast, forecast_with,
+    load_weights, save_weights,
 };
 use burn::prelude::*;
 
@@ -203,6 +203,7 @@ fn sampling_is_seeded_and_deterministic_and_leaves_the_context_alone() {
         eta,
         spacing: Spacing::Trailing,
         seed,
+        shrink: None,
     };
     let a = values(forecast(&model, &c, &schedule, &inputs, &sampler(1, 0.0)).expect("a"));
     let again = values(forecast(&model, &c, &schedule, &inputs, &sampler(1, 0.0)).expect("b"));
@@ -249,6 +250,51 @@ fn sampling_is_seeded_and_deterministic_and_leaves_the_context_alone() {
         error.to_string().contains("1001") && error.to_string().contains("1000"),
         "{error}"
     );
+}
+
+#[test]
+fn the_shrink_keeps_the_warp_where_the_residual_is_small_and_leaves_its_last_horizon_alone() {
+    let c = small(); // 3 future frames 0.5 s apart
+    let model = trained_like(&c, 9);
+    let schedule = NoiseSchedule::new(&c.diffusion);
+    let inputs = forecast_inputs(&c, 20);
+    let base = inputs.base.clone().expect("a residual model's inputs");
+    let plain = DdimConfig::deterministic(1, 4);
+    let shrink = ResidualShrink {
+        tau: 0.3,
+        fade_s: 1.5,
+    };
+    let shrunk = DdimConfig {
+        shrink: Some(shrink),
+        ..plain.clone()
+    };
+    let residual = |sampler: &DdimConfig| -> Vec<Vec<f32>> {
+        let out = forecast(&model, &c, &schedule, &inputs, sampler).expect("forecast");
+        let r = values(out - base.clone());
+        r.chunks(r.len() / c.future_frames)
+            .map(<[f32]>::to_vec)
+            .collect()
+    };
+    let (raw, kept) = (residual(&plain), residual(&shrunk));
+    for (k, (raw, kept)) in raw.iter().zip(&kept).enumerate() {
+        let tau = shrink.tau_at((k + 1) as f64 * c.frame_interval_s) as f32;
+        let mut zeroed = 0;
+        for (r, s) in raw.iter().zip(kept) {
+            // r' = sign(r)·max(|r| − τ, 0), up to the rounding of (r + base) − base.
+            let want = r.signum() * (r.abs() - tau).max(0.0);
+            assert!(
+                (s - want).abs() < 1e-5,
+                "frame {k}: {r} -> {s}, want {want}"
+            );
+            zeroed += usize::from(r.abs() < tau);
+        }
+        if k + 1 == c.future_frames {
+            assert_eq!(tau, 0.0);
+            assert_eq!(raw, kept, "the last horizon is at fade_s: untouched");
+        } else {
+            assert!(zeroed > 0, "frame {k}: no residual under τ = {tau}");
+        }
+    }
 }
 
 #[test]

@@ -27,12 +27,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::actions::ActionStats;
 use crate::config::WorldModelConfig;
-use crate::ddim::{DdimConfig, Spacing};
+use crate::ddim::{DdimConfig, DdimError, Spacing};
 use crate::ego_warp::PlanarMotion;
 use crate::manoeuvre::{Manoeuvre, constant_turn, current_motion};
 use crate::model::WorldModel;
 use crate::nodes::model_params::WorldModelParams;
 use crate::rollout::Rollout;
+use crate::shrink::ResidualShrink;
 use crate::weights::load_weights;
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -56,6 +57,10 @@ pub struct DiffusionRolloutParams {
     pub spacing: Spacing,
     #[serde(default)]
     pub seed: u64,
+    /// Soft-threshold the sampled residual over the ego warp, `{tau, fade_s}`
+    /// (`shrink.rs`): the static world is moved, not re-predicted. Residual models only.
+    #[serde(default)]
+    pub shrink: Option<ResidualShrink>,
     /// `log`, a manoeuvre (`keep`, `left`, `right`, `faster`, `slower`, `stop`) or `list`.
     #[serde(default = "default_actions")]
     pub actions: String,
@@ -234,15 +239,32 @@ pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> 
         }
         horizons.push((h, frames as usize));
     }
+    if params.shrink.is_some() && !config.residual_over_ego_warp {
+        return Err(ParamError::field(
+            "shrink",
+            format!(
+                "model '{}' predicts latents, not a residual over the ego warp: there is no residual to shrink",
+                config.name
+            ),
+        ));
+    }
     let sampler = DdimConfig {
         steps: params.steps,
         eta: params.eta,
         spacing: params.spacing,
         seed: params.seed,
+        shrink: params.shrink,
     };
     sampler
         .check(&crate::schedule::NoiseSchedule::new(&config.diffusion))
-        .map_err(|error| ParamError::field("steps", error.to_string()))?;
+        .map_err(|error| {
+            let field = match error {
+                DdimError::Steps { .. } => "steps",
+                DdimError::Eta(_) => "eta",
+                DdimError::Shrink(_) => "shrink",
+            };
+            ParamError::field(field, error.to_string())
+        })?;
     let stats = LatentStatsFile::load(&params.latent_stats)
         .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
     stats
