@@ -3,7 +3,8 @@
 #   bench/scripts/forecast.sh [BEVWORLD_BINARY]
 # 1. forecasts on the held-out test scenes (seeds 9500-9503, the world model's test range,
 #    made by `bevworld train world-model --prepare-only` or here) and on the validation scenes
-#    (9100-9101) at 1 and 4 DDIM steps, the only setting chosen on them;
+#    (9100-9101) at 1 and 4 DDIM steps and with the residual shrink's settings, the only
+#    settings chosen on them;
 # 2. action control on branched scenes, branched at 2 s: validation seeds 9850-9853, held-out
 #    test seeds 9800-9807, the model and the ego-warp baseline;
 # 3. the live graph's latencies at 12 Hz.
@@ -17,7 +18,12 @@ for split in val:9100:2 test:9500:4; do
     fi
 done
 for steps in 1 4; do
-    $BIN eval forecast --data out/synth-wm-val --out "out/eval-forecast-val-s$steps" --steps "$steps"
+    $BIN eval forecast --data out/synth-wm-val --out "out/eval-forecast-val-s$steps" --steps "$steps" \
+        --set rollout.shrink=null
+done
+for tau in 0.15 0.25 0.4; do
+    $BIN eval forecast --data out/synth-wm-val --out "out/eval-forecast-val-tau$tau" \
+        --set "rollout.shrink={tau: $tau, fade_s: 3.0}" --set "views.methods=[model]"
 done
 $BIN eval forecast --data out/synth-wm-test --out out/eval-forecast-test \
     --plot bench/results/forecast-chamfer.png --json > out/eval-forecast-test.json

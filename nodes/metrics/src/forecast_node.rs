@@ -168,12 +168,19 @@ impl ForecastMetrics {
                             scores.insert(name.into(), mean.into());
                         }
                     }
+                    let by_scene: serde_json::Map<String, serde_json::Value> = cell
+                        .chamfer_by_scene
+                        .iter()
+                        .filter_map(|(scene, sum)| Some((scene.clone(), sum.mean()?.into())))
+                        .collect();
                     let per_scene: Vec<f64> = cell
                         .chamfer_by_scene
                         .values()
                         .filter_map(Sum::mean)
                         .collect();
                     if per_scene.len() > 1 {
+                        // Each scene's mean, for comparisons paired by scene.
+                        scores.insert("chamfer_by_scene".into(), by_scene.into());
                         let n = per_scene.len() as f64;
                         let mean = per_scene.iter().sum::<f64>() / n;
                         let variance =
@@ -429,7 +436,30 @@ pub fn register(registry: &mut Registry) {
 
 #[cfg(test)]
 mod tests {
-    use super::percentile;
+    use super::{ForecastMetricsParams, build, percentile};
+
+    #[test]
+    fn the_table_gives_each_scenes_mean_and_the_spread_of_those_means_by_hand() {
+        let params = ForecastMetricsParams {
+            roi: "4docc".into(),
+            latent_stats: None,
+            json: None,
+            print: false,
+        };
+        let mut metrics = build(&params).expect("params");
+        // Scene a: 1 and 3 (mean 2); scene b: 4 (mean 4). Over contexts: 8/3.
+        for (scene, value) in [("a", 1.0), ("a", 3.0), ("b", 4.0)] {
+            metrics.cell(1.0, 2, "model").add_chamfer(scene, value);
+        }
+        let table = metrics.table();
+        let model = &table["horizons"][0]["model"];
+        assert_eq!(model["chamfer_by_scene"]["a"], 2.0, "{table}");
+        assert_eq!(model["chamfer_by_scene"]["b"], 4.0);
+        assert!((model["chamfer"].as_f64().expect("mean") - 8.0 / 3.0).abs() < 1e-12);
+        // The population spread of {2, 4}.
+        assert_eq!(model["chamfer_scene_std"], 1.0);
+        assert_eq!(model["scenes"], 2);
+    }
 
     #[test]
     fn percentiles_are_nearest_rank() {
