@@ -82,7 +82,10 @@ fn eval_forecast_scores_every_context_and_writes_every_file_it_promises() {
     let table: serde_json::Value = serde_json::from_slice(&output.stdout).expect("one JSON object");
     assert_eq!(table["contexts"], 7, "{table}");
     assert_eq!(table["steps"], 1);
-    assert_eq!(table["shrink"]["tau"], 0.25, "the graph's sampler is recorded: {table}");
+    assert_eq!(
+        table["shrink"]["tau"], 0.25,
+        "the graph's sampler is recorded: {table}"
+    );
     assert!(table["ms_per_forecast"].as_f64().expect("ms") > 0.0);
     let rows = table["horizons"].as_array().expect("horizons");
     assert_eq!(rows.len(), 2);
