@@ -34,12 +34,13 @@ for name in v-residual-warp-input v-residual epsilon-residual v-latent fade2 fad
     done
 done
 # The rendered cost of a lower latent L1: Chamfer, PSNR and SSIM on the validation scenes for
-# the plain residual, warp-input and fade-2 runs, through the forecast graph with their weights.
+# the plain residual, warp-input and fade-2 runs, through the forecast graph with their weights,
+# sampled as drawn (without the rollout's residual shrink, which the page's figures predate).
 for name in v-residual v-residual-warp-input fade2; do
     sed -e "s|configs/models/world-model-tiny.yaml|runs/ablation-$name/model-config.yaml|" \
         -e "s|nodes/world_model/weights/world-model-tiny.bpk|runs/ablation-$name/world-model-tiny.bpk|" \
         configs/graphs/forecast.yaml > "runs/ablation-$name/forecast.yaml"
     echo "== $name, rendered"
     $BIN eval forecast --data out/synth-wm-val --graph "runs/ablation-$name/forecast.yaml" \
-        --out "runs/ablation-$name/eval-forecast"
+        --out "runs/ablation-$name/eval-forecast" --set rollout.shrink=null
 done
