@@ -23,9 +23,15 @@ impl EgoWarpBase {
         match (self.residual, self.fade_s) {
             (false, _) => 0.0,
             (true, None) => 1.0,
-            (true, Some(fade)) => (1.0 - horizon_s / fade).clamp(0.0, 1.0) as f32,
+            (true, Some(fade)) => linear_fade(horizon_s, fade) as f32,
         }
     }
+}
+
+/// `1 − h / h_fade`, clamped to [0, 1]: 1 now, 0 from `fade_s` on. How the warp's weight in
+/// the base and the residual shrink's threshold fall with the horizon.
+pub fn linear_fade(horizon_s: f64, fade_s: f64) -> f64 {
+    (1.0 - horizon_s / fade_s).clamp(0.0, 1.0)
 }
 
 /// A planar rigid motion: the pose of ego frame `b` in ego frame `a`'s coordinates

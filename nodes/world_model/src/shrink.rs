@@ -18,6 +18,8 @@
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::ego_warp::linear_fade;
+
 /// The threshold and the horizon at which it reaches 0.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -49,7 +51,7 @@ impl ResidualShrink {
 
     /// τ(h) for a frame `horizon_s` seconds ahead.
     pub fn tau_at(&self, horizon_s: f64) -> f64 {
-        self.tau * (1.0 - horizon_s / self.fade_s).max(0.0)
+        self.tau * linear_fade(horizon_s, self.fade_s)
     }
 
     /// Soft-thresholds each future frame of `residual`, frame `k` (from 0) being
