@@ -168,19 +168,15 @@ impl ForecastMetrics {
                             scores.insert(name.into(), mean.into());
                         }
                     }
-                    let by_scene: serde_json::Map<String, serde_json::Value> = cell
+                    let by_scene: BTreeMap<&String, f64> = cell
                         .chamfer_by_scene
                         .iter()
-                        .filter_map(|(scene, sum)| Some((scene.clone(), sum.mean()?.into())))
+                        .filter_map(|(scene, sum)| Some((scene, sum.mean()?)))
                         .collect();
-                    let per_scene: Vec<f64> = cell
-                        .chamfer_by_scene
-                        .values()
-                        .filter_map(Sum::mean)
-                        .collect();
+                    let per_scene: Vec<f64> = by_scene.values().copied().collect();
                     if per_scene.len() > 1 {
                         // Each scene's mean, for comparisons paired by scene.
-                        scores.insert("chamfer_by_scene".into(), by_scene.into());
+                        scores.insert("chamfer_by_scene".into(), serde_json::json!(by_scene));
                         let n = per_scene.len() as f64;
                         let mean = per_scene.iter().sum::<f64>() / n;
                         let variance =
