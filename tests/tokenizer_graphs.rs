@@ -102,7 +102,7 @@ fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
     assert_eq!(ply_vertices(&frame.join("LIDAR_TOP_recon.ply")), inputs);
     let csv = std::fs::read_to_string(out.join("metrics.csv")).expect("csv");
     assert_eq!(csv.lines().count(), 3, "{csv}");
-    assert!(csv.starts_with("frame_token,psnr_db,ssim,chamfer_m2"));
+    assert!(csv.starts_with("frame_token,scene,psnr_db,ssim,chamfer_m2"));
 
     // Empty-space skipping with early stop: fewer samples, same outputs written.
     let skipped = run_reconstruct(
@@ -114,6 +114,97 @@ fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
         .as_f64()
         .expect("fraction");
     assert!(fraction > 0.0 && fraction < 1.0, "fraction {fraction}");
+}
+
+#[test]
+fn eval_tokenizer_scores_each_scene_and_the_spread_over_scenes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    let output = bevworld(&[
+        "synth",
+        "--out",
+        data.to_str().expect("utf-8 path"),
+        "--scenes",
+        "2",
+        "--camera-size",
+        "64x36",
+        "--azimuth-step",
+        "2",
+        "--agents",
+        "1",
+        "--seconds",
+        "1",
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let eval = |extra: &[&str]| {
+        let out = dir.path().join("eval");
+        let mut args = vec![
+            "eval",
+            "tokenizer",
+            "--data",
+            data.to_str().expect("utf-8 path"),
+            "--out",
+            out.to_str().expect("utf-8 path"),
+        ];
+        args.extend(extra);
+        bevworld(&args)
+    };
+    let output = eval(&["--json"]);
+    assert!(output.status.success(), "{}", text(&output));
+    let table: serde_json::Value = serde_json::from_slice(&output.stdout).expect("json");
+    assert_eq!(table["frames"], 4);
+    assert_eq!(
+        table["weights"], "nodes/tokenizer/weights/tokenizer-tiny.bpk",
+        "the graph's weights, said"
+    );
+    let scenes = table["scenes"].as_array().expect("scenes");
+    assert_eq!(scenes.len(), 2);
+    let per_scene: Vec<f64> = scenes
+        .iter()
+        .map(|s| {
+            assert_eq!(s["frames"], 2);
+            s["psnr_db"].as_f64().expect("psnr")
+        })
+        .collect();
+    // Two keyframes each: the mean over keyframes is the mean of the scenes' means, and the
+    // spread of two values is half their distance.
+    let psnr = table["psnr_db"].as_f64().expect("psnr");
+    assert!((psnr - (per_scene[0] + per_scene[1]) / 2.0).abs() < 1e-9);
+    let spread = table["scene_std"]["psnr_db"].as_f64().expect("spread");
+    assert!((spread - (per_scene[0] - per_scene[1]).abs() / 2.0).abs() < 1e-9);
+    assert!(psnr.is_finite() && table["chamfer_m2"].as_f64().is_some_and(f64::is_finite));
+    assert!(dir.path().join("eval/metrics.csv").is_file());
+    assert!(dir.path().join("eval/000003/CAM_FRONT_recon.png").is_file());
+
+    // The same weights named on the command line give the same figures; the table names them.
+    let shipped = common::repo().join("nodes/tokenizer/weights/tokenizer-tiny.bpk");
+    let output = eval(&["--weights", shipped.to_str().expect("utf-8 path")]);
+    assert!(output.status.success(), "{}", text(&output));
+    let printed = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        printed.contains(&format!("{psnr:.2} ± {spread:.2}")) && printed.contains("| 2 |"),
+        "{printed}"
+    );
+
+    // Bad input: each refusal names what was wrong.
+    for (args, expected) in [
+        (
+            vec!["--weights", "/nonexistent/tokenizer.bpk"],
+            "/nonexistent/tokenizer.bpk",
+        ),
+        (vec!["--set", "metrics.colour=1"], "colour"),
+    ] {
+        let output = eval(&args);
+        assert!(!output.status.success());
+        assert!(text(&output).contains(expected), "{}", text(&output));
+    }
+    let output = bevworld(&["eval", "tokenizer", "--data", "/nonexistent/data"]);
+    assert!(!output.status.success());
+    assert!(
+        text(&output).contains("/nonexistent/data"),
+        "{}",
+        text(&output)
+    );
 }
 
 #[test]

@@ -30,6 +30,10 @@ pub enum EvalCommand {
     /// Whether forecasts follow their actions: on a branched synthetic dataset, each
     /// manoeuvre's forecast against every manoeuvre's ground truth.
     Control(crate::commands::control::ControlEvalArgs),
+    /// The tokenizer's reconstructions of every keyframe of a dataset: camera PSNR and SSIM
+    /// and LiDAR Chamfer, each scene's mean and the spread over scenes; runs the reconstruct
+    /// graph.
+    Tokenizer(crate::commands::reconstruction_eval::TokenizerEvalArgs),
 }
 
 #[derive(Args)]
@@ -132,6 +136,14 @@ impl RoiName {
             RoiName::Vidar => Roi::VIDAR,
         }
     }
+
+    /// The preset's name in a graph's parameters.
+    pub fn preset(self) -> &'static str {
+        match self {
+            RoiName::FourDOcc => "4docc",
+            RoiName::Vidar => "vidar",
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -194,6 +206,7 @@ pub fn run(command: &EvalCommand) -> Result<ExitCode> {
         EvalCommand::Baselines(args) => baselines_command(args),
         EvalCommand::Fid(args) => fid_command(args),
         EvalCommand::WorldModel(args) => world_model(args),
+        EvalCommand::Tokenizer(args) => crate::commands::reconstruction_eval::run(args),
     }
 }
 
@@ -493,10 +506,7 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
         bail!("--data {}: no such folder", args.data.display());
     }
     let scores = args.out.join("scores.json");
-    let roi = match args.roi {
-        RoiName::FourDOcc => "4docc",
-        RoiName::Vidar => "vidar",
-    };
+    let roi = args.roi.preset();
     let mut set = vec![
         format!("source.data={}", args.data.display()),
         format!("files.out={}", args.out.display()),

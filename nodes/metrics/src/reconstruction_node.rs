@@ -6,7 +6,7 @@
 //! Every rendered point counts: the render casts one ray per remaining return, and a ray it
 //! ends on the car, or short of a return beyond its far plane, is an error that 4D-Occ's
 //! protocol (a prediction for every ray with a return) counts too. Means over frames go into
-//! the node's metrics.
+//! the node's metrics; each scene's means and their spread over scenes go into its JSON summary.
 
 use std::path::PathBuf;
 
@@ -29,6 +29,10 @@ pub struct ReconstructionMetricsParams {
     /// Also write one CSV row per frame here.
     #[serde(default)]
     pub csv: Option<PathBuf>,
+    /// Also write the summary here (`summary`): the means over frames, each scene's, and
+    /// their spread over scenes.
+    #[serde(default)]
+    pub json: Option<PathBuf>,
 }
 
 fn default_roi() -> String {
@@ -39,6 +43,7 @@ fn default_roi() -> String {
 #[derive(Clone, Debug, PartialEq)]
 pub struct FrameScores {
     pub frame_token: String,
+    pub scene_name: String,
     pub psnr_db: f64,
     pub ssim: f64,
     /// `None` when the rendered or the true sweep has no point in the ROI: an empty cloud is
@@ -133,6 +138,7 @@ pub fn score_frame(
     let (psnr_db, ssim) = score_images(frame, images)?;
     Ok(FrameScores {
         frame_token: frame.frame_token.clone(),
+        scene_name: frame.scene_name.clone(),
         psnr_db,
         ssim,
         chamfer_m2: {
@@ -146,6 +152,7 @@ pub fn score_frame(
 pub struct ReconstructionMetrics {
     roi: Roi,
     csv: Option<PathBuf>,
+    json: Option<PathBuf>,
     scores: Vec<FrameScores>,
 }
 
@@ -170,27 +177,29 @@ impl Sink for ReconstructionMetrics {
     }
 
     fn finish(&mut self) -> Result<(), NodeError> {
-        let Some(path) = &self.csv else {
-            return Ok(());
-        };
-        let mut text =
-            String::from("frame_token,psnr_db,ssim,chamfer_m2,truth_non_finite_points_dropped\n");
-        for s in &self.scores {
-            text.push_str(&format!(
-                "{},{:.4},{:.5},{},{}\n",
-                s.frame_token,
-                s.psnr_db,
-                s.ssim,
-                s.chamfer_m2.map_or(String::new(), |c| format!("{c:.5}")),
-                s.truth_non_finite_points_dropped
-            ));
+        if let Some(path) = &self.csv {
+            let mut text = String::from(
+                "frame_token,scene,psnr_db,ssim,chamfer_m2,truth_non_finite_points_dropped\n",
+            );
+            for s in &self.scores {
+                text.push_str(&format!(
+                    "{},{},{:.4},{:.5},{},{}\n",
+                    s.frame_token,
+                    s.scene_name,
+                    s.psnr_db,
+                    s.ssim,
+                    s.chamfer_m2.map_or(String::new(), |c| format!("{c:.5}")),
+                    s.truth_non_finite_points_dropped
+                ));
+            }
+            write_creating_folder(path, &text)?;
         }
-        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent)
-                .map_err(|e| NodeError::fatal(format!("creating {}: {e}", parent.display())))?;
+        if let Some(path) = &self.json {
+            let text = serde_json::to_string_pretty(&summary(&self.scores))
+                .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))?;
+            write_creating_folder(path, &text)?;
         }
-        std::fs::write(path, text)
-            .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))
+        Ok(())
     }
 
     fn report(&self) -> Figures {
@@ -223,6 +232,100 @@ impl Sink for ReconstructionMetrics {
     }
 }
 
+fn write_creating_folder(path: &std::path::Path, text: &str) -> Result<(), NodeError> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .map_err(|e| NodeError::fatal(format!("creating {}: {e}", parent.display())))?;
+    }
+    std::fs::write(path, text)
+        .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))
+}
+
+/// The means over `scores` of camera PSNR, SSIM and LiDAR Chamfer, the same of each scene
+/// (in the order scenes first appear), and the spread of the scenes' means: their population
+/// standard deviation, how much a figure moves with the scene. A frame whose render or truth
+/// had no point in the ROI counts in `empty_clouds` and stays out of every Chamfer mean.
+pub fn summary(scores: &[FrameScores]) -> serde_json::Value {
+    let means = |frames: &[&FrameScores]| {
+        let mean = |values: Vec<f64>| {
+            (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+        };
+        [
+            mean(frames.iter().map(|s| s.psnr_db).collect()),
+            mean(frames.iter().map(|s| s.ssim).collect()),
+            mean(frames.iter().filter_map(|s| s.chamfer_m2).collect()),
+        ]
+    };
+    const NAMES: [&str; 3] = ["psnr_db", "ssim", "chamfer_m2"];
+    let figures = |values: [Option<f64>; 3]| {
+        NAMES
+            .iter()
+            .zip(values)
+            .map(|(name, value)| ((*name).to_string(), serde_json::json!(value)))
+            .collect::<serde_json::Map<_, _>>()
+    };
+    let mut scene_names: Vec<&str> = Vec::new();
+    for s in scores {
+        if !scene_names.contains(&s.scene_name.as_str()) {
+            scene_names.push(&s.scene_name);
+        }
+    }
+    let per_scene: Vec<(&str, usize, [Option<f64>; 3])> = scene_names
+        .iter()
+        .map(|&name| {
+            let frames: Vec<&FrameScores> =
+                scores.iter().filter(|s| s.scene_name == name).collect();
+            (name, frames.len(), means(&frames))
+        })
+        .collect();
+    let spread: Vec<Option<f64>> = (0..NAMES.len())
+        .map(|k| {
+            let values: Vec<f64> = per_scene.iter().filter_map(|(_, _, m)| m[k]).collect();
+            (values.len() > 1).then(|| {
+                let n = values.len() as f64;
+                let mean = values.iter().sum::<f64>() / n;
+                (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt()
+            })
+        })
+        .collect();
+    let mut table = figures(means(&scores.iter().collect::<Vec<_>>()));
+    table.insert("frames".into(), scores.len().into());
+    table.insert(
+        "empty_clouds".into(),
+        scores
+            .iter()
+            .filter(|s| s.chamfer_m2.is_none())
+            .count()
+            .into(),
+    );
+    table.insert(
+        "truth_non_finite_points_dropped".into(),
+        scores
+            .iter()
+            .map(|s| s.truth_non_finite_points_dropped)
+            .sum::<usize>()
+            .into(),
+    );
+    table.insert(
+        "scene_std".into(),
+        figures([spread[0], spread[1], spread[2]]).into(),
+    );
+    table.insert(
+        "scenes".into(),
+        per_scene
+            .into_iter()
+            .map(|(name, frames, values)| {
+                let mut scene = figures(values);
+                scene.insert("scene".into(), name.into());
+                scene.insert("frames".into(), frames.into());
+                serde_json::Value::Object(scene)
+            })
+            .collect::<Vec<_>>()
+            .into(),
+    );
+    table.into()
+}
+
 fn roi_of(params: &ReconstructionMetricsParams) -> Result<Roi, ParamError> {
     Roi::preset(&params.roi).ok_or_else(|| {
         ParamError::field("roi", format!("unknown preset '{}'", params.roi))
@@ -245,8 +348,66 @@ pub fn register(registry: &mut Registry) {
             Ok(Node::Sink(Box::new(ReconstructionMetrics {
                 roi,
                 csv: params.csv,
+                json: params.json,
                 scores: Vec::new(),
             })))
         },
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(scene: &str, psnr_db: f64, ssim: f64, chamfer_m2: Option<f64>) -> FrameScores {
+        FrameScores {
+            frame_token: format!("{scene}-{psnr_db}"),
+            scene_name: scene.into(),
+            psnr_db,
+            ssim,
+            chamfer_m2,
+            truth_non_finite_points_dropped: 1,
+        }
+    }
+
+    #[test]
+    fn the_summary_gives_each_scenes_mean_and_their_spread_by_hand() {
+        let scores = [
+            frame("b", 20.0, 0.5, Some(1.0)),
+            frame("a", 30.0, 0.7, None),
+            frame("b", 22.0, 0.7, Some(3.0)),
+            frame("a", 28.0, 0.9, Some(0.5)),
+        ];
+        let table = summary(&scores);
+        assert_eq!(table["frames"], 4);
+        assert_eq!(table["empty_clouds"], 1);
+        assert_eq!(table["truth_non_finite_points_dropped"], 4);
+        // Over frames: PSNR (20 + 30 + 22 + 28) / 4; Chamfer over the three with a cloud.
+        assert_eq!(table["psnr_db"], 25.0);
+        assert!((table["ssim"].as_f64().expect("ssim") - 0.7).abs() < 1e-12);
+        assert_eq!(table["chamfer_m2"], 1.5);
+        // Scenes in the order they first appear: b (21 dB, 2 m²), then a (29 dB, 0.5 m²).
+        let scenes = table["scenes"].as_array().expect("scenes");
+        assert_eq!(scenes[0]["scene"], "b");
+        assert_eq!(scenes[0]["frames"], 2);
+        assert_eq!(scenes[0]["psnr_db"], 21.0);
+        assert_eq!(scenes[0]["chamfer_m2"], 2.0);
+        assert_eq!(scenes[1]["psnr_db"], 29.0);
+        assert_eq!(scenes[1]["chamfer_m2"], 0.5);
+        // The population spread of {21, 29} is 4; of {2, 0.5}, 0.75.
+        assert_eq!(table["scene_std"]["psnr_db"], 4.0);
+        assert_eq!(table["scene_std"]["chamfer_m2"], 0.75);
+    }
+
+    #[test]
+    fn one_scene_has_no_spread_and_nothing_scored_has_no_means() {
+        let table = summary(&[frame("a", 20.0, 0.5, None)]);
+        assert_eq!(table["psnr_db"], 20.0);
+        assert!(table["chamfer_m2"].is_null(), "an empty cloud is no 0");
+        assert!(table["scene_std"]["psnr_db"].is_null());
+        let table = summary(&[]);
+        assert_eq!(table["frames"], 0);
+        assert!(table["psnr_db"].is_null());
+        assert_eq!(table["scenes"].as_array().map(Vec::len), Some(0));
+    }
 }

@@ -140,7 +140,12 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
         "{chamfer} against {expected}",
     );
 
-    let mut sink = build(serde_json::json!({})).expect("node");
+    let folder = tempfile::tempdir().expect("temporary folder");
+    let (csv, json) = (
+        folder.path().join("metrics.csv"),
+        folder.path().join("deeper/summary.json"),
+    );
+    let mut sink = build(serde_json::json!({"csv": csv, "json": json})).expect("node");
     let header = Header {
         seq: 0,
         time_of_validity_us: 0,
@@ -189,6 +194,38 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
         mean > 0.0,
         "the empty render left out of the mean, not averaged in as 0"
     );
+
+    // Both files name the frame's scene; the summary holds the two frames as one scene.
+    sink.finish().expect("written");
+    let rows = std::fs::read_to_string(&csv).expect("csv");
+    let lines: Vec<&str> = rows.lines().collect();
+    assert_eq!(lines.len(), 3, "{rows}");
+    assert!(lines[0].starts_with("frame_token,scene,psnr_db"));
+    assert!(
+        lines[1].starts_with(&format!(
+            "{},{},100.0000,",
+            frame.frame_token, frame.scene_name
+        )),
+        "{rows}"
+    );
+    let table: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("parsed");
+    assert_eq!(table["frames"], 2);
+    assert_eq!(table["empty_clouds"], 1);
+    assert_eq!(table["scenes"][0]["scene"], frame.scene_name.as_str());
+    assert_eq!(table["scenes"][0]["frames"], 2);
+    assert_eq!(table["chamfer_m2"].as_f64(), Some(mean));
+}
+
+#[test]
+fn a_summary_that_cannot_be_written_is_an_error_naming_its_path() {
+    let folder = tempfile::tempdir().expect("temporary folder");
+    let blocker = folder.path().join("not-a-folder");
+    std::fs::write(&blocker, "a file where a folder should be").expect("written");
+    let json = blocker.join("summary.json");
+    let mut sink = build(serde_json::json!({"json": json})).expect("node");
+    let error = sink.finish().expect_err("refused").to_string();
+    assert!(error.contains("not-a-folder"), "{error}");
 }
 
 #[test]

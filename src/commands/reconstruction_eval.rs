@@ -1,0 +1,145 @@
+//! `bevworld eval tokenizer`: the reconstruct graph over every keyframe of a dataset, its
+//! scores summed up per scene and over scenes, so that a tokenizer can be reported on a seed
+//! range it was never tuned on, with the spread that says how far the figure moves with the
+//! scene.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+
+use crate::commands::eval::RoiName;
+
+#[derive(Args)]
+pub struct TokenizerEvalArgs {
+    /// The dataset (nuScenes layout, e.g. a `bevworld synth` folder).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The reconstruction graph to run: its `source`, `encode`, `render` and `metrics` nodes
+    /// and its sinks `inputs`, `reconstructions`, `pairs`, `input_sweep` and
+    /// `rendered_sweep`.
+    #[arg(long, default_value = "configs/graphs/reconstruct.yaml")]
+    pub graph: PathBuf,
+    /// Tokenizer weights for the encoder and the renderer alike, e.g. a run's
+    /// `tokenizer.bpk` (default: the graph's, the shipped weights).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "4docc")]
+    pub roi: RoiName,
+    /// Where the inputs, reconstructions, `metrics.csv` (one row per keyframe) and
+    /// `summary.json` are written.
+    #[arg(long, default_value = "out/eval-tokenizer")]
+    pub out: PathBuf,
+    /// Print the summary as one JSON object: the means over keyframes (`psnr_db`, `ssim`,
+    /// `chamfer_m2`), their spread over scenes (`scene_std`) and each scene's means.
+    #[arg(long)]
+    pub json: bool,
+    /// Further `node.key=value` overrides of the graph, as `run --set`, applied after the
+    /// command's own: e.g. `source.max_frames=8`.
+    #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+    pub set: Vec<String>,
+}
+
+pub fn run(args: &TokenizerEvalArgs) -> Result<ExitCode> {
+    if !args.data.is_dir() {
+        bail!("--data {}: no such folder", args.data.display());
+    }
+    if let Some(weights) = &args.weights
+        && !weights.is_file()
+    {
+        bail!("--weights {}: no such file", weights.display());
+    }
+    let summary_path = args.out.join("summary.json");
+    let out = args.out.display();
+    let mut set = vec![
+        format!("source.data={}", args.data.display()),
+        format!("metrics.csv={}", args.out.join("metrics.csv").display()),
+        format!("metrics.json={}", summary_path.display()),
+        format!("metrics.roi={}", args.roi.preset()),
+    ];
+    for sink in [
+        "inputs",
+        "reconstructions",
+        "pairs",
+        "input_sweep",
+        "rendered_sweep",
+    ] {
+        set.push(format!("{sink}.out={out}"));
+    }
+    if let Some(weights) = &args.weights {
+        set.push(format!("encode.weights={}", weights.display()));
+        set.push(format!("render.weights={}", weights.display()));
+    }
+    set.extend(args.set.iter().cloned());
+    if summary_path.exists() {
+        std::fs::remove_file(&summary_path)
+            .with_context(|| format!("removing the old {}", summary_path.display()))?;
+    }
+    let (params, _) = crate::commands::graph_run::run_graph(&args.graph, &set)?;
+    let mut table: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&summary_path)
+            .with_context(|| format!("reading {}", summary_path.display()))?,
+    )
+    .with_context(|| format!("parsing {}", summary_path.display()))?;
+    if table["frames"].as_u64() == Some(0) {
+        bail!("no keyframe of {} was scored", args.data.display());
+    }
+    table["weights"] = params
+        .iter()
+        .find(|(kind, _)| *kind == "encode")
+        .map_or(serde_json::Value::Null, |(_, p)| p["weights"].clone());
+    if args.json {
+        println!("{}", serde_json::to_string(&table)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!("{}", markdown_of(&table));
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The summary as a Markdown table: one row per scene, then the mean over keyframes ± the
+/// spread of the scenes' means.
+fn markdown_of(table: &serde_json::Value) -> String {
+    let number = |value: &serde_json::Value, digits: usize| {
+        value
+            .as_f64()
+            .map_or("—".to_string(), |v| format!("{v:.digits$}"))
+    };
+    let empty = Vec::new();
+    let scenes = table["scenes"].as_array().unwrap_or(&empty);
+    let mut text = format!(
+        "{} keyframes of {} scene(s), weights {}; {} empty cloud(s) left out of the Chamfer\n\n",
+        table["frames"],
+        scenes.len(),
+        table["weights"].as_str().unwrap_or("?"),
+        table["empty_clouds"],
+    );
+    text.push_str(
+        "| scene | keyframes | PSNR (dB) | SSIM | Chamfer (m²) |\n|---|---|---|---|---|\n",
+    );
+    for scene in scenes {
+        text.push_str(&format!(
+            "| {} | {} | {} | {} | {} |\n",
+            scene["scene"].as_str().unwrap_or("?"),
+            scene["frames"],
+            number(&scene["psnr_db"], 2),
+            number(&scene["ssim"], 3),
+            number(&scene["chamfer_m2"], 3),
+        ));
+    }
+    let with_spread = |name: &str, digits: usize| {
+        let mean = number(&table[name], digits);
+        match table["scene_std"][name].as_f64() {
+            Some(spread) => format!("{mean} ± {spread:.digits$}"),
+            None => mean,
+        }
+    };
+    text.push_str(&format!(
+        "| mean ± spread over scenes | {} | {} | {} | {} |",
+        table["frames"],
+        with_spread("psnr_db", 2),
+        with_spread("ssim", 3),
+        with_spread("chamfer_m2", 3),
+    ));
+    text
+}
