@@ -10,12 +10,15 @@ use common::{bevworld, bevworld_owned, node, reconstruct_outputs, text};
 
 use std::path::Path;
 
-/// One synthetic scene of 1 s (2 keyframes) with small cameras and a sparse LiDAR.
-fn synth_small(out: &Path) {
+/// `scenes` synthetic scenes of 1 s (2 keyframes each) with small cameras and a sparse LiDAR.
+fn synth_small(out: &Path, scenes: usize) {
+    let scenes = scenes.to_string();
     let output = bevworld(&[
         "synth",
         "--out",
         out.to_str().expect("utf-8 path"),
+        "--scenes",
+        &scenes,
         "--camera-size",
         "64x36",
         "--azimuth-step",
@@ -60,7 +63,7 @@ fn ply_vertices(path: &Path) -> usize {
 fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
-    synth_small(&data);
+    synth_small(&data, 1);
     let out = dir.path().join("out");
     let report = run_reconstruct(&data, &out, &[]);
 
@@ -120,22 +123,7 @@ fn reconstruct_writes_inputs_reconstructions_pairs_sweeps_and_metrics() {
 fn eval_tokenizer_scores_each_scene_and_the_spread_over_scenes() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
-    let output = bevworld(&[
-        "synth",
-        "--out",
-        data.to_str().expect("utf-8 path"),
-        "--scenes",
-        "2",
-        "--camera-size",
-        "64x36",
-        "--azimuth-step",
-        "2",
-        "--agents",
-        "1",
-        "--seconds",
-        "1",
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
+    synth_small(&data, 2);
     let eval = |extra: &[&str]| {
         let out = dir.path().join("eval");
         let mut args = vec![
@@ -232,7 +220,7 @@ fn on_the_real_keyframe_the_rendered_sweep_leaves_out_the_returns_off_the_car() 
 fn export_features_writes_the_latent_and_the_fused_feature() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
-    synth_small(&data);
+    synth_small(&data, 1);
     let out = dir.path().join("features");
     let output = bevworld(&[
         "run",
@@ -328,7 +316,7 @@ fn bad_model_params_fail_before_any_frame_naming_the_field() {
 fn a_lidar_only_model_refuses_to_render_the_cameras() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
-    synth_small(&data);
+    synth_small(&data, 1);
     // The ablation's L -> L model: its camera decoder never trained.
     let tiny = std::fs::read_to_string("configs/models/tokenizer-tiny.yaml").expect("tiny config");
     assert!(tiny.contains("modalities: [camera, lidar]"));
@@ -373,7 +361,7 @@ fn tokenizer_stats_matches_the_latents_it_summarises() {
 
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");
-    synth_small(&data);
+    synth_small(&data, 1);
     let root = std::path::PathBuf::from(
         std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
     );
@@ -500,7 +488,7 @@ fn check_reads_no_weights_and_run_loads_them() {
     let weights = dir.path().join("wider.bpk");
     save_weights(&wider.init_seeded(1, &Device::flex()), &weights).expect("save");
     let data = dir.path().join("data");
-    synth_small(&data);
+    synth_small(&data, 1);
     let sets = [
         format!("encode.weights={}", weights.display()),
         format!("render.weights={}", weights.display()),

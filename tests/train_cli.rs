@@ -179,8 +179,15 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
     // Validation scores the frames as the graph does: the same camera images (the graph's
     // are 8-bit PNGs, hence the PSNR's tolerance), and every ray of the sweep, the returns
     // beyond the rays' far plane among them, as 4D-Occ's protocol renders every ray that has
-    // a return. The graph's CSV keeps 5 decimals of the Chamfer.
-    let column_mean = |csv: &str, column: usize| -> f64 {
+    // a return. The graph's CSV keeps 5 decimals of the Chamfer; its columns are read by name.
+    let column_mean = |csv: &str, name: &str| -> f64 {
+        let column = csv
+            .lines()
+            .next()
+            .expect("header")
+            .split(',')
+            .position(|c| c == name)
+            .expect("column name");
         let values: Vec<f64> = csv
             .lines()
             .skip(1)
@@ -195,7 +202,10 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
         values.iter().sum::<f64>() / values.len() as f64
     };
     let per_frame = std::fs::read_to_string(out.join("metrics.csv")).expect("graph metrics");
-    let (graph_psnr, graph_chamfer) = (column_mean(&per_frame, 1), column_mean(&per_frame, 3));
+    let (graph_psnr, graph_chamfer) = (
+        column_mean(&per_frame, "psnr_db"),
+        column_mean(&per_frame, "chamfer_m2"),
+    );
     let run_csv = std::fs::read_to_string(run.join("metrics.csv")).expect("csv");
     let last: Vec<f64> = run_csv
         .lines()
