@@ -524,15 +524,8 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
         set.push(format!("rollout.horizons=[{}]", list.join(",")));
     }
     set.extend(args.set.iter().cloned());
-    if scores.exists() {
-        std::fs::remove_file(&scores)
-            .with_context(|| format!("removing the old {}", scores.display()))?;
-    }
-    let (params, _) = crate::commands::graph_run::run_graph(&args.graph, &set)?;
-    let mut table: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&scores).with_context(|| format!("reading {}", scores.display()))?,
-    )
-    .with_context(|| format!("parsing {}", scores.display()))?;
+    let (params, mut table) =
+        crate::commands::graph_run::run_graph_for_report(&args.graph, &set, &scores)?;
     let rollout = params
         .iter()
         .find(|(kind, _)| *kind == "diffusion_rollout")

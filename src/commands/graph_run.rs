@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use bevworld_graph::{Override, RunOptions, StopHandle};
 
 use crate::registry;
@@ -46,4 +46,24 @@ pub fn run_graph(
         bail!("{}: {error}", graph.display());
     }
     Ok((params, outcome.report))
+}
+
+/// Runs the graph, whose sink writes the JSON file `report`, and returns the resolved
+/// parameters and that file parsed. An old `report` is removed first, so that a run that
+/// writes none is an error, not a stale table.
+pub fn run_graph_for_report(
+    graph: &Path,
+    set: &[String],
+    report: &Path,
+) -> Result<(ResolvedParams, serde_json::Value)> {
+    if report.exists() {
+        std::fs::remove_file(report)
+            .with_context(|| format!("removing the old {}", report.display()))?;
+    }
+    let (params, _) = run_graph(graph, set)?;
+    let table = serde_json::from_slice(
+        &std::fs::read(report).with_context(|| format!("reading {}", report.display()))?,
+    )
+    .with_context(|| format!("parsing {}", report.display()))?;
+    Ok((params, table))
 }

@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::Args;
 
 use crate::commands::eval::RoiName;
@@ -72,16 +72,8 @@ pub fn run(args: &TokenizerEvalArgs) -> Result<ExitCode> {
         set.push(format!("render.weights={}", weights.display()));
     }
     set.extend(args.set.iter().cloned());
-    if summary_path.exists() {
-        std::fs::remove_file(&summary_path)
-            .with_context(|| format!("removing the old {}", summary_path.display()))?;
-    }
-    let (params, _) = crate::commands::graph_run::run_graph(&args.graph, &set)?;
-    let mut table: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&summary_path)
-            .with_context(|| format!("reading {}", summary_path.display()))?,
-    )
-    .with_context(|| format!("parsing {}", summary_path.display()))?;
+    let (params, mut table) =
+        crate::commands::graph_run::run_graph_for_report(&args.graph, &set, &summary_path)?;
     if table["frames"].as_u64() == Some(0) {
         bail!("no keyframe of {} was scored", args.data.display());
     }

@@ -174,15 +174,10 @@ impl ForecastMetrics {
                         .filter_map(|(scene, sum)| Some((scene, sum.mean()?)))
                         .collect();
                     let per_scene: Vec<f64> = by_scene.values().copied().collect();
-                    if per_scene.len() > 1 {
+                    if let Some(spread) = crate::report_file::population_std(&per_scene) {
                         // Each scene's mean, for comparisons paired by scene.
                         scores.insert("chamfer_by_scene".into(), serde_json::json!(by_scene));
-                        let n = per_scene.len() as f64;
-                        let mean = per_scene.iter().sum::<f64>() / n;
-                        let variance =
-                            per_scene.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
-                        // The spread of the per-scene means: how much the figure moves with the scene.
-                        scores.insert("chamfer_scene_std".into(), variance.sqrt().into());
+                        scores.insert("chamfer_scene_std".into(), spread.into());
                         scores.insert("scenes".into(), per_scene.len().into());
                     }
                     row.insert(method.clone(), scores.into());
@@ -361,14 +356,9 @@ impl Sink for ForecastMetrics {
             );
         }
         if let Some(path) = &self.json {
-            if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-                std::fs::create_dir_all(parent)
-                    .map_err(|e| NodeError::fatal(format!("creating {}: {e}", parent.display())))?;
-            }
             let text = serde_json::to_string_pretty(&self.table())
                 .map_err(|e| NodeError::fatal(format!("{}: {e}", path.display())))?;
-            std::fs::write(path, text)
-                .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))?;
+            crate::report_file::write_report(path, &text)?;
         }
         Ok(())
     }

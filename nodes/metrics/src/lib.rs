@@ -10,6 +10,7 @@ pub mod frechet;
 pub mod image;
 pub mod inception;
 pub mod reconstruction_node;
+pub mod report_file;
 
 pub use chamfer::{ChamferResult, Roi, chamfer, chamfer_in_roi};
 pub use fid::{FidError, InceptionExtractor, load_inception};

@@ -192,12 +192,12 @@ impl Sink for ReconstructionMetrics {
                     s.truth_non_finite_points_dropped
                 ));
             }
-            write_creating_folder(path, &text)?;
+            crate::report_file::write_report(path, &text)?;
         }
         if let Some(path) = &self.json {
             let text = serde_json::to_string_pretty(&summary(&self.scores))
                 .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))?;
-            write_creating_folder(path, &text)?;
+            crate::report_file::write_report(path, &text)?;
         }
         Ok(())
     }
@@ -230,15 +230,6 @@ impl Sink for ReconstructionMetrics {
         }
         figures
     }
-}
-
-fn write_creating_folder(path: &std::path::Path, text: &str) -> Result<(), NodeError> {
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .map_err(|e| NodeError::fatal(format!("creating {}: {e}", parent.display())))?;
-    }
-    std::fs::write(path, text)
-        .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))
 }
 
 /// The means over `scores` of camera PSNR, SSIM and LiDAR Chamfer, the same of each scene
@@ -281,11 +272,7 @@ pub fn summary(scores: &[FrameScores]) -> serde_json::Value {
     let spread: Vec<Option<f64>> = (0..NAMES.len())
         .map(|k| {
             let values: Vec<f64> = per_scene.iter().filter_map(|(_, _, m)| m[k]).collect();
-            (values.len() > 1).then(|| {
-                let n = values.len() as f64;
-                let mean = values.iter().sum::<f64>() / n;
-                (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt()
-            })
+            crate::report_file::population_std(&values)
         })
         .collect();
     let mut table = figures(means(&scores.iter().collect::<Vec<_>>()));
