@@ -159,6 +159,105 @@ pub fn update_locked<E>(
     Ok(outcome)
 }
 
+/// A file or folder name made from a name a dataset chose (a scene, a token, a camera): path
+/// separators, `..` and every character outside `[A-Za-z0-9._+-]` become `_`, so that no
+/// name a dataset says can lead a write out of its folder. Never empty, `.` or `..`.
+pub fn safe_file_name(name: &str) -> String {
+    let cleaned: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '.' | '_' | '+') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    // A name of dots alone (`.`, `..`, `...`) would name this folder or its parent.
+    if cleaned.chars().all(|c| c == '.') {
+        return cleaned.replace('.', "_") + "_";
+    }
+    cleaned
+}
+
+/// Whether `path` lies inside `root` by its words alone: it starts with `root` and no
+/// component after it is `..`, the root or a prefix. A sink checks every path it writes.
+pub fn lies_inside(root: &Path, path: &Path) -> bool {
+    use std::path::Component;
+    path.strip_prefix(root).is_ok_and(|rest| {
+        !rest.as_os_str().is_empty() && rest.components().all(|c| matches!(c, Component::Normal(_)))
+    })
+}
+
+/// An exclusive claim on an output folder for this process: a second run writing into the
+/// same folder at the same time would silently overwrite the first's files, so it is refused
+/// instead. Several sinks of one run may share a folder (each takes the claim; the lock is
+/// released when the last lets go). The lock is `<dir>/.bevworld.lock`, held with the
+/// operating system's advisory lock, so a killed run leaves no stale claim.
+pub struct FolderClaim {
+    key: PathBuf,
+}
+
+fn claims() -> &'static std::sync::Mutex<std::collections::HashMap<PathBuf, (std::fs::File, usize)>>
+{
+    static CLAIMS: OnceLock<
+        std::sync::Mutex<std::collections::HashMap<PathBuf, (std::fs::File, usize)>>,
+    > = OnceLock::new();
+    CLAIMS.get_or_init(Default::default)
+}
+
+impl FolderClaim {
+    /// Creates `dir` if needed and claims it; an error names the folder when another process
+    /// holds it.
+    pub fn acquire(dir: &Path) -> Result<Self, String> {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("{}: cannot create folder: {e}", dir.display()))?;
+        let key = dir
+            .canonicalize()
+            .map_err(|e| format!("{}: {e}", dir.display()))?;
+        let mut held = claims().lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((_, count)) = held.get_mut(&key) {
+            *count += 1;
+            return Ok(Self { key });
+        }
+        let lock_path = key.join(".bevworld.lock");
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&lock_path)
+            .map_err(|e| format!("{}: cannot open: {e}", lock_path.display()))?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                return Err(format!(
+                    "{}: another run is writing into this folder now (it holds {}); wait for it, or write into another folder",
+                    dir.display(),
+                    lock_path.display()
+                ));
+            }
+            Err(std::fs::TryLockError::Error(e)) => {
+                return Err(format!("{}: cannot lock: {e}", lock_path.display()));
+            }
+        }
+        held.insert(key.clone(), (file, 1));
+        Ok(Self { key })
+    }
+}
+
+impl Drop for FolderClaim {
+    fn drop(&mut self) {
+        let mut held = claims().lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((_, count)) = held.get_mut(&self.key) {
+            *count -= 1;
+            if *count == 0 {
+                // Closing the file releases the lock.
+                held.remove(&self.key);
+            }
+        }
+    }
+}
+
 /// Runs a blocking I/O job (reading a frame's files) on the I/O pool.
 pub fn spawn_io<T, F>(job: F) -> std::io::Result<JoinHandle<T>>
 where
@@ -193,6 +292,54 @@ pub fn wait_read(handle: JoinHandle<std::io::Result<Vec<u8>>>) -> std::io::Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn names_from_datasets_stay_one_component() {
+        for (name, expected) in [
+            ("scene-0001", "scene-0001"),
+            ("../../escaped/x", ".._.._escaped_x"),
+            ("/etc/passwd", "_etc_passwd"),
+            ("..", "___"),
+            (".", "__"),
+            ("", "_"),
+            ("a\\b:c\0d", "a_b_c_d"),
+            ("tok+0.5s", "tok+0.5s"),
+        ] {
+            assert_eq!(safe_file_name(name), expected, "{name:?}");
+        }
+        let root = Path::new("/out/forecast");
+        assert!(lies_inside(root, &root.join("a/+1s/x.png")));
+        assert!(!lies_inside(root, &root.join("../x.png")));
+        assert!(!lies_inside(root, &root.join("a/../../x.png")));
+        assert!(!lies_inside(root, Path::new("/out/forecast-2/x.png")));
+        assert!(!lies_inside(root, Path::new("/etc/passwd")));
+        assert!(!lies_inside(root, root));
+    }
+
+    #[test]
+    fn a_folder_is_claimed_by_one_process_and_shared_within_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let first = FolderClaim::acquire(dir.path()).unwrap();
+        // A second sink of the same run shares it.
+        let second = FolderClaim::acquire(dir.path()).unwrap();
+        // Another process's claim is the same lock held through another open file.
+        let other = std::fs::OpenOptions::new()
+            .write(true)
+            .open(dir.path().join(".bevworld.lock"))
+            .unwrap();
+        assert!(other.try_lock().is_err(), "held while claimed");
+        drop(first);
+        assert!(
+            other.try_lock().is_err(),
+            "held while one sink still claims it"
+        );
+        drop(second);
+        other.try_lock().expect("released with the last claim");
+        let refused = FolderClaim::acquire(dir.path()).err().unwrap_or_default();
+        assert!(refused.contains("another run is writing"), "{refused}");
+        drop(other);
+        assert!(FolderClaim::acquire(dir.path()).is_ok());
+    }
 
     #[test]
     fn atomic_write_leaves_only_the_final_file() {

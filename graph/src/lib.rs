@@ -33,7 +33,7 @@ pub use node::{Figures, Inputs, Node, Outputs, Role, Sink, Source, SourceInfo, T
 pub use pacing::{Pacing, PacingError};
 pub use policy::EdgePolicy;
 pub use port::{PortSpec, PortType};
-pub use registry::{KindSpec, NodeKind, ParamError, Registry};
+pub use registry::{GraphRule, KindSpec, NodeKind, ParamError, Registry, RuleProblem};
 pub use runtime::{RunObserver, RunOptions, RunOutcome, StopHandle, run};
 pub use schema::{OnError, SyncMode};
 pub use validate::{

@@ -122,6 +122,10 @@ pub struct NodeReport {
     pub skips: u64,
     /// Extra figures a node reports (PSNR, Chamfer, pillar counts), by name.
     pub extra: std::collections::BTreeMap<String, f64>,
+    /// Why the node made nothing of what it received, when it says (`Task::nothing_made`,
+    /// `Sink::nothing_made`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nothing_made: Option<String>,
     /// The node reached its end: a source its last item or a drain, a task or sink its
     /// `finish` (buffers flushed, files closed). False after an abort cut it short.
     pub finished: bool,
@@ -149,6 +153,7 @@ impl NodeReport {
             unaligned: 0,
             skips: 0,
             extra: Default::default(),
+            nothing_made: None,
             finished: false,
             latency: LatencyHistogram::default(),
             age: LatencyHistogram::default(),

@@ -57,6 +57,13 @@ pub trait Task: Send {
     fn report(&self) -> Figures {
         Figures::new()
     }
+
+    /// Why the node sent nothing of what it received, in the user's terms (a history that
+    /// never filled: how many frames it got, how many it needs). Asked at the end of a run in
+    /// which no sink made anything, to name the real cause.
+    fn nothing_made(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Consumes inputs (writes files, prints metrics).
@@ -75,6 +82,13 @@ pub trait Sink: Send {
     /// See `Source::report`.
     fn report(&self) -> Figures {
         Figures::new()
+    }
+
+    /// `Some(why)` when the sink made nothing of what it received (every item was of a kind
+    /// it does not write, nothing could be scored). A run in which no sink made anything
+    /// fails, naming this.
+    fn nothing_made(&self) -> Option<String> {
+        None
     }
 }
 

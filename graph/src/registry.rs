@@ -151,10 +151,23 @@ impl KindSpec {
     }
 }
 
-/// All node kinds an application knows.
+/// A problem a graph rule finds: the node and parameter it points at.
+#[derive(Clone, Debug)]
+pub struct RuleProblem {
+    /// The node id.
+    pub node: String,
+    pub error: ParamError,
+}
+
+/// A check of the whole graph, for what no one node can see: how kinds of different families
+/// fit together (a sink that writes one method's renders must be fed that method).
+pub type GraphRule = dyn Fn(&crate::validate::GraphSpec) -> Vec<RuleProblem> + Send + Sync;
+
+/// All node kinds an application knows, and the rules its graphs must keep.
 #[derive(Clone, Default)]
 pub struct Registry {
     kinds: BTreeMap<&'static str, NodeKind>,
+    rules: Vec<Arc<GraphRule>>,
 }
 
 impl Registry {
@@ -215,6 +228,19 @@ impl Registry {
                 checker: Arc::new(checker),
             },
         );
+    }
+
+    /// Adds a rule every graph is checked against once its nodes and edges are valid; its
+    /// problems are reported at the parameter they name, as a node's own are.
+    pub fn rule(
+        &mut self,
+        rule: impl Fn(&crate::validate::GraphSpec) -> Vec<RuleProblem> + Send + Sync + 'static,
+    ) {
+        self.rules.push(Arc::new(rule));
+    }
+
+    pub fn rules(&self) -> impl Iterator<Item = &GraphRule> {
+        self.rules.iter().map(|rule| rule.as_ref())
     }
 
     pub fn get(&self, name: &str) -> Option<&NodeKind> {

@@ -443,15 +443,54 @@ fn nothing_done(nodes: &[NodeReport], draining: bool) -> Option<RunError> {
             "the sources produced no items (a `start` past the end, a shard with no scenes, an empty selection?)".into()
         }));
     }
-    nodes
+    if let Some(n) = nodes
         .iter()
         .find(|n| n.role != "source" && n.items_in > 0 && n.skips == n.items_in)
-        .map(|n| {
-            RunError::NothingDone(format!(
-                "node '{}' skipped all {} items it received (see the warnings above)",
-                n.id, n.skips
-            ))
-        })
+    {
+        return Some(RunError::NothingDone(format!(
+            "node '{}' skipped all {} items it received (see the warnings above)",
+            n.id, n.skips
+        )));
+    }
+    nothing_reached_an_output(nodes, draining)
+}
+
+/// A run whose every sink made nothing (received no item, or says it made nothing of what it
+/// received) produced nothing a user asked for, whatever its sources read: it fails, naming
+/// where the stream stopped and, when that node says, why.
+fn nothing_reached_an_output(nodes: &[NodeReport], draining: bool) -> Option<RunError> {
+    let sinks: Vec<&NodeReport> = nodes.iter().filter(|n| n.role == "sink").collect();
+    let made_nothing = |n: &NodeReport| n.items_in == 0 || n.nothing_made.is_some();
+    if draining || sinks.is_empty() || !sinks.iter().all(|n| made_nothing(n)) {
+        return None;
+    }
+    // Where the stream stopped: a node that was given items and made nothing of them. One
+    // that says why comes first; the graph's order breaks ties (upstream nodes are declared
+    // first in every shipped graph).
+    let stopped = |n: &&NodeReport| {
+        n.role != "source"
+            && n.items_in > 0
+            && (n.nothing_made.is_some() || (n.role == "task" && n.items_out == 0))
+    };
+    let culprit = nodes
+        .iter()
+        .filter(stopped)
+        .find(|n| n.nothing_made.is_some())
+        .or_else(|| nodes.iter().find(stopped));
+    let message = match culprit {
+        Some(n) => format!(
+            "no sink made anything: node '{}' ({}) received {} item(s) and made nothing of them{}",
+            n.id,
+            n.kind,
+            n.items_in,
+            n.nothing_made
+                .as_deref()
+                .map(|why| format!(": {why}"))
+                .unwrap_or_default()
+        ),
+        None => "no sink received an item".to_string(),
+    };
+    Some(RunError::NothingDone(message))
 }
 
 fn run_node(thread: NodeThread, node: Node, shared: &Shared) -> NodeReport {
@@ -579,9 +618,9 @@ enum Consumer {
 
 fn run_consumer(thread: NodeThread, mut consumer: Consumer, shared: &Shared) -> NodeReport {
     let mut report = drive_consumer(thread, &mut consumer, shared);
-    report.extra = match &consumer {
-        Consumer::Task(task) => task.report(),
-        Consumer::Sink(sink) => sink.report(),
+    (report.extra, report.nothing_made) = match &consumer {
+        Consumer::Task(task) => (task.report(), task.nothing_made()),
+        Consumer::Sink(sink) => (sink.report(), sink.nothing_made()),
     };
     report
 }

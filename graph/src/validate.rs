@@ -77,6 +77,21 @@ impl GraphSpec {
         )
     }
 
+    /// The nodes whose outputs reach node `index`, directly or through others, nearest first.
+    pub fn upstream_of(&self, index: usize) -> Vec<usize> {
+        let mut found: Vec<usize> = Vec::new();
+        let mut frontier = vec![index];
+        while let Some(node) = frontier.pop() {
+            for edge in self.edges.iter().filter(|e| e.to_node == node) {
+                if edge.from_node != index && !found.contains(&edge.from_node) {
+                    found.push(edge.from_node);
+                    frontier.push(edge.from_node);
+                }
+            }
+        }
+        found
+    }
+
     /// A readable listing of nodes (with resolved parameters) and edges, for `bevworld check`.
     pub fn describe(&self) -> String {
         use std::fmt::Write as _;
@@ -160,6 +175,14 @@ pub enum OverrideError {
     NoValue(String),
     #[error("'{0}' is not node.key")]
     NoKey(String),
+    /// A value a graph file would refuse in the same place (`.nan`, `.inf`): refused here too,
+    /// in the same words, rather than read as text.
+    #[error("{target}={value}: {message}")]
+    Value {
+        target: String,
+        value: String,
+        message: String,
+    },
 }
 
 /// One `--set node.key=value` override.
@@ -173,7 +196,9 @@ pub struct Override {
 }
 
 impl Override {
-    /// Parses `node.key=value`; the value is read as YAML (`12`, `true`, `[1, 2]`, `text`).
+    /// Parses `node.key=value`; the value is read as YAML (`12`, `true`, `[1, 2]`, `text`), as
+    /// the graph file reads a parameter: what the file refuses (a non-finite number) is
+    /// refused here too, and a value that is not YAML at all is the text the user typed.
     pub fn parse(text: &str) -> Result<Self, OverrideError> {
         let (target, value) = text
             .split_once('=')
@@ -196,6 +221,18 @@ impl Override {
                     serde_json::Value::String(value.to_string())
                 }
                 Ok(parsed) => parsed,
+                Err(error)
+                    if matches!(
+                        error.without_snippet(),
+                        serde_saphyr::Error::NonFiniteFloat { .. }
+                    ) =>
+                {
+                    return Err(OverrideError::Value {
+                        target: target.to_string(),
+                        value: value.to_string(),
+                        message: crate::yaml::describe(&error),
+                    });
+                }
                 Err(_) => serde_json::Value::String(value.to_string()),
             }
         };
@@ -333,21 +370,38 @@ pub fn validate(
     if !finder.found.is_empty() {
         return Err(Diagnostics(finder.found));
     }
-    let (specs, pending): (Vec<NodeSpec>, Vec<_>) = nodes
+    let (specs, pending): (Vec<NodeSpec>, Vec<(Checked, ParamLocations)>) = nodes
         .into_iter()
         .flatten()
         .map(|(spec, checked, locations)| (spec, (checked, locations)))
         .unzip();
-    Ok(ValidatedGraph {
-        spec: GraphSpec {
-            name: parsed.name.unwrap_or_else(|| file.to_string()),
-            file: file.to_string(),
-            settings: parsed.settings,
-            nodes: specs,
-            edges,
-        },
-        pending,
-    })
+    let spec = GraphSpec {
+        name: parsed.name.unwrap_or_else(|| file.to_string()),
+        file: file.to_string(),
+        settings: parsed.settings,
+        nodes: specs,
+        edges,
+    };
+    for rule in registry.rules() {
+        for problem in rule(&spec) {
+            let Some(index) = spec.nodes.iter().position(|n| n.id == problem.node) else {
+                finder.at(None, problem.error.message, problem.error.accepted);
+                continue;
+            };
+            let node = &spec.nodes[index];
+            param_problem(
+                &mut finder,
+                node.kind.name,
+                &node.id,
+                problem.error,
+                &pending[index].1,
+            );
+        }
+    }
+    if !finder.found.is_empty() {
+        return Err(Diagnostics(finder.found));
+    }
+    Ok(ValidatedGraph { spec, pending })
 }
 
 /// Validates and builds a graph: what `run` needs.
@@ -687,6 +741,22 @@ fn check_edges(
             .as_ref()
             .map(|p| p.value)
             .unwrap_or(parsed.settings.default_policy);
+        // The same edge twice would deliver every message twice: every forecast computed,
+        // written and scored twice over, silently.
+        if edges.iter().any(|e: &ResolvedEdge| {
+            (e.from_node, e.from_port, e.to_node, e.to_port)
+                == (from_node, from_port, to_node, to_port)
+        }) {
+            finder.at(
+                loc(&edge.from),
+                format!(
+                    "edge {} -> {} is written twice",
+                    edge.from.value, edge.to.value
+                ),
+                Some("each edge once: a second copy would deliver every message twice".into()),
+            );
+            continue;
+        }
         edges.push(ResolvedEdge {
             from_node,
             from_port,

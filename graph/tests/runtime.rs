@@ -392,6 +392,47 @@ edges:
 }
 
 #[test]
+fn a_run_whose_sinks_receive_nothing_fails_naming_the_node_that_held_the_stream_and_why() {
+    // Two items, a window of three: the source produced, but no sink was given anything.
+    let outcome = run_yaml(
+        r#"
+nodes:
+  - {id: src, kind: count, params: {count: 2}}
+  - {id: relay, kind: pass}
+  - {id: history, kind: window, params: {size: 3}}
+  - {id: out, kind: record, params: {name: starved_out}}
+edges:
+  - {from: src.out, to: relay.in}
+  - {from: relay.out, to: history.in}
+  - {from: history.out, to: out.in}
+"#,
+    );
+    match &outcome.error {
+        Some(RunError::NothingDone(why)) => assert!(
+            why.contains("'history' (window) received 2 item(s)")
+                && why.contains("a window needs 3 items, it got 2"),
+            "{why}"
+        ),
+        other => panic!("{other:?}"),
+    }
+    assert!(recorded("starved_out").is_empty());
+    // Three items fill the window: the sink gets one, and the run succeeds.
+    let outcome = run_yaml(
+        r#"
+nodes:
+  - {id: src, kind: count, params: {count: 3}}
+  - {id: history, kind: window, params: {size: 3}}
+  - {id: out, kind: record, params: {name: fed_out}}
+edges:
+  - {from: src.out, to: history.in}
+  - {from: history.out, to: out.in}
+"#,
+    );
+    assert!(outcome.error.is_none(), "{:?}", outcome.error);
+    assert_eq!(recorded("fed_out"), vec![3]);
+}
+
+#[test]
 fn an_abort_names_the_nodes_that_did_not_finish() {
     let graph = resolve(
         r#"

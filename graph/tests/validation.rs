@@ -351,3 +351,58 @@ fn a_set_goes_through_the_same_checks_as_the_file() {
     let d = problems_with(CHAIN, &["a.pacing.rate_hz=1e-300"]);
     assert!(only(&d).message.contains("rate_hz"), "{d}");
 }
+
+#[test]
+fn the_same_edge_twice_is_refused_at_the_second() {
+    let d = problems(
+        "nodes:\n  - {id: a, kind: count}\n  - {id: r, kind: record, params: {name: x}}\nedges:\n  - {from: a.out, to: r.in}\n  - {from: a.out, to: r.in}\n",
+    );
+    let d = only(&d);
+    assert!(d.message.contains("a.out -> r.in is written twice"), "{d}");
+    assert_eq!(line_col(d).0, 6);
+}
+
+#[test]
+fn a_set_parses_its_value_as_the_file_does() {
+    // The file refuses a non-finite number; so does --set, in the same words, rather than
+    // reading `.nan` as text.
+    let in_file = problems("nodes:\n  - {id: t, kind: text_sink, params: {scale: .nan}}\n");
+    assert!(in_file.mentions("non-finite"), "{in_file}");
+    for value in [".nan", "[.nan]", "-.inf", "[1, .inf]"] {
+        let error = Override::parse(&format!("t.scale={value}")).unwrap_err();
+        assert!(error.to_string().contains("non-finite"), "{value}: {error}");
+    }
+    // Text that is not YAML stays the text typed.
+    let text = Override::parse("t.name=[unclosed").unwrap();
+    assert_eq!(text.value, serde_json::json!("[unclosed"));
+}
+
+#[test]
+fn a_graph_rule_reports_at_the_parameter_it_names() {
+    let mut registry = registry();
+    registry.rule(|graph| {
+        graph
+            .nodes
+            .iter()
+            .filter(|n| n.kind.name == "record" && n.params["name"] == "forbidden")
+            .map(|n| bevworld_graph::RuleProblem {
+                node: n.id.clone(),
+                error: bevworld_graph::ParamError::field("name", "is forbidden by a rule"),
+            })
+            .collect()
+    });
+    let yaml = "nodes:\n  - {id: a, kind: count}\n  - id: r\n    kind: record\n    params:\n      name: forbidden\nedges:\n  - {from: a.out, to: r.in}\n";
+    let d = match resolve(yaml, "g.yaml", &registry, &[]) {
+        Ok(_) => panic!("the rule must refuse it"),
+        Err(d) => d,
+    };
+    let d = only(&d);
+    assert!(
+        d.message.contains("bad parameter 'name' of node 'r'"),
+        "{d}"
+    );
+    assert!(d.message.contains("forbidden by a rule"), "{d}");
+    assert_eq!(line_col(d).0, 6);
+    let fine = yaml.replace("forbidden", "allowed");
+    assert!(resolve(&fine, "g.yaml", &registry, &[]).is_ok());
+}

@@ -218,8 +218,58 @@ fn one_f() -> f64 {
     1.0
 }
 
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindowParams {
+    pub size: usize,
+}
+
+/// Emits one item per `size` items received (their sum), and says why when it emitted none:
+/// a history buffer in miniature.
+struct Window {
+    size: usize,
+    held: Vec<u64>,
+    received: usize,
+    emitted: usize,
+}
+
+impl Task for Window {
+    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
+        self.held.push(inputs.get::<Counted>("in")?.value);
+        self.received += 1;
+        if self.held.len() == self.size {
+            let sum = self.held.drain(..).sum();
+            self.emitted += 1;
+            out.send("out", Counted::new(sum))?;
+        }
+        Ok(())
+    }
+
+    fn nothing_made(&self) -> Option<String> {
+        (self.emitted == 0).then(|| {
+            format!(
+                "a window needs {} items, it got {}",
+                self.size, self.received
+            )
+        })
+    }
+}
+
 pub fn registry() -> Registry {
     let mut registry = Registry::new();
+    registry.register(
+        KindSpec::task("window", "sums every `size` items")
+            .input(PortSpec::new::<Counted>("in"))
+            .output(PortSpec::new::<Counted>("out")),
+        |params: WindowParams| {
+            Ok(Node::Task(Box::new(Window {
+                size: params.size,
+                held: Vec::new(),
+                received: 0,
+                emitted: 0,
+            })))
+        },
+    );
     registry.register(
         KindSpec::source("count", "counts up").output(PortSpec::new::<Counted>("out")),
         |params: CountParams| Ok(Node::Source(Box::new(CountSource { params, next: 0 }))),
