@@ -2,7 +2,9 @@
 //! dataset-level `index.json`.
 //!
 //! - Files are `<out>/<frame token>.npy` (NumPy, `[C, H, W]` float32) or `.safetensors` (one
-//!   tensor named `features`, with the channel meanings in its metadata).
+//!   tensor named `features`, with the channel meanings, model, weights digest and tokens in
+//!   its metadata, so that a file copied away still says what made it). The token becomes a
+//!   file name with `safe_file_name`: no token a dataset writes can lead outside `out`.
 //! - Writes are atomic. A rerun skips files that exist unless `overwrite` is set, so a killed
 //!   run restarted with the same command completes the set without duplicates; temporary files
 //!   a kill left behind are removed at start, and only those (a temporary names its writer's
@@ -65,20 +67,6 @@ pub struct ExportSink {
     rewritten_unindexed: u64,
 }
 
-/// A file name from a sample token: path separators and odd characters become '_'.
-fn file_stem(token: &str) -> String {
-    token
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '.' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect()
-}
-
 fn encode(features: &BevFeatures, format: ExportFormat) -> Result<Vec<u8>, String> {
     let shape = [
         features.channels.len(),
@@ -109,6 +97,10 @@ fn encode(features: &BevFeatures, format: ExportFormat) -> Result<Vec<u8>, Strin
                     features.meta.sample_token.clone(),
                 ),
                 ("model".to_string(), features.model.clone()),
+                // What made it, in the file itself: a copy taken away from its index.json
+                // still says which weights it came from.
+                ("weights_hash".to_string(), features.weights_hash.clone()),
+                ("frame_token".to_string(), features.meta.frame_token.clone()),
             ]);
             safetensors::tensor::serialize([("features", view)], Some(metadata))
                 .map_err(|e| e.to_string())
@@ -173,7 +165,7 @@ impl Sink for ExportSink {
             ExportFormat::Npy => "npy",
             ExportFormat::Safetensors => "safetensors",
         };
-        let file = format!("{}.{extension}", file_stem(token));
+        let file = format!("{}.{extension}", bevworld_graph::io::safe_file_name(token));
         let path = self.params.out.join(&file);
         let made_by = self.provenance.get(&file);
         let same_maker = made_by.is_some_and(|(model, hash)| {
@@ -292,7 +284,8 @@ pub fn register(registry: &mut Registry) {
             Ok(())
         },
         |params: ExportParams| {
-            Ok(Node::Sink(Box::new(ExportSink { params, writes: Writes::new(8), entries: BTreeMap::new(), provenance: BTreeMap::new(), written: 0, skipped_existing: 0, rewritten_unindexed: 0 })))
+            let writes = Writes::new(params.out.clone(), 8);
+            Ok(Node::Sink(Box::new(ExportSink { params, writes, entries: BTreeMap::new(), provenance: BTreeMap::new(), written: 0, skipped_existing: 0, rewritten_unindexed: 0 })))
         },
     );
 }

@@ -9,15 +9,30 @@
 //!
 //! Only one method's renders are written (`method`, the forecast by default); the others are
 //! scored, not saved.
+//!
+//! - **PLY intensity.** `LIDAR_TOP_true.ply` holds the logged returns with their logged
+//!   intensity. The tokenizer does not model reflectance, so a forecast's `intensity` is the
+//!   rendered ray's opacity `1 − T` in [0, 1]: how surely the ray met a surface.
+//! - **The folder is this run's.** Scene names come from the dataset and become one file
+//!   name each (`safe_file_name`), so nothing lands outside `out`. The folder is claimed for
+//!   the run (`FolderClaim`: a second run into it at the same time is refused), and at the end
+//!   the files of the sink's layout that this run did not write (a previous run's other
+//!   horizons, contexts or truths) are removed and counted (`previous_run_files_removed`), so
+//!   that the folder holds one run's forecast and nothing stale beside it.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::io::Cursor;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink};
+use bevworld_graph::io::{FolderClaim, safe_file_name};
+use bevworld_graph::{
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+};
 use bevworld_plot::{Cloud, caption, top_down};
-use bevworld_types::{ForecastMethod, FutureView, ImageSet, PointCloud, RenderedFuture};
+use bevworld_types::{
+    ForecastMethod, FutureView, ImageSet, LidarPoint, PointCloud, RenderedFuture,
+};
 use image::imageops::FilterType;
 use image::{ImageFormat, RgbImage};
 use serde::{Deserialize, Serialize};
@@ -46,12 +61,13 @@ fn default_extent() -> f64 {
     50.0
 }
 
-/// The folder of a view's context frame.
+/// The folder of a view's context frame: the scene's name made safe as one file name
+/// (`safe_file_name`), whatever the dataset calls it.
 pub fn context_folder(view: &FutureView) -> String {
-    format!(
+    safe_file_name(&format!(
         "{}-{:04}",
         view.context.scene_name, view.context.index_in_scene
-    )
+    ))
 }
 
 /// A horizon's folder name: `+0.5s`.
@@ -72,6 +88,13 @@ pub struct ForecastSink {
     writes: Writes,
     /// Per context folder, the columns seen so far.
     strips: BTreeMap<String, Vec<Column>>,
+    /// Every file this run wrote: the rest of the sink's layout in `out` is a previous run's.
+    written: BTreeSet<PathBuf>,
+    /// Views received, and those of the method this sink writes.
+    views: u64,
+    views_written: u64,
+    previous_run_files_removed: u64,
+    _claim: Option<FolderClaim>,
 }
 
 fn png(image: &RgbImage, name: &str) -> Result<Vec<u8>, NodeError> {
@@ -82,10 +105,10 @@ fn png(image: &RgbImage, name: &str) -> Result<Vec<u8>, NodeError> {
     Ok(bytes)
 }
 
-fn ply(points: &[[f32; 3]], comment: &str) -> Result<Vec<u8>, NodeError> {
+fn ply(points: &[LidarPoint], comment: &str) -> Result<Vec<u8>, NodeError> {
     let points: Vec<PlyPoint> = points
         .iter()
-        .map(|p| PlyPoint::new(p[0], p[1], p[2], 0.0))
+        .map(|p| PlyPoint::new(p.x, p.y, p.z, p.intensity))
         .collect();
     encode_ply(&points, PlyEncoding::BinaryLittleEndian, Some(comment))
         .map_err(|error| NodeError::item(error.to_string()))
@@ -114,7 +137,86 @@ fn truth_images(view: &FutureView, like: &ImageSet) -> Option<ImageSet> {
     Some(ImageSet { images })
 }
 
+/// Whether `name`, in a context folder (`in_horizon`: in one of its horizon folders), is a
+/// file of this sink's layout.
+fn is_layout_file(name: &str, in_horizon: bool) -> bool {
+    if in_horizon {
+        matches!(
+            name,
+            "LIDAR_TOP.ply" | "LIDAR_TOP_true.ply" | "top_down.png"
+        ) || (name.starts_with("CAM_") && name.ends_with(".png"))
+    } else {
+        name.starts_with("strip_CAM_") && name.ends_with(".png")
+    }
+}
+
+/// The files of the sink's layout under `out`: `<context>/strip_CAM_*.png` and
+/// `<context>/+<h>s/{CAM_*.png, LIDAR_TOP.ply, LIDAR_TOP_true.ply, top_down.png}`.
+fn layout_files(out: &Path) -> Vec<PathBuf> {
+    let entries = |dir: &Path| -> Vec<std::fs::DirEntry> {
+        std::fs::read_dir(dir)
+            .map(|read| read.flatten().collect())
+            .unwrap_or_default()
+    };
+    let mut files = Vec::new();
+    for context in entries(out).into_iter().filter(|e| e.path().is_dir()) {
+        for entry in entries(&context.path()) {
+            let name = entry.file_name().to_string_lossy().to_string();
+            let path = entry.path();
+            if path.is_dir() && name.starts_with('+') && name.ends_with('s') {
+                files.extend(
+                    entries(&path)
+                        .into_iter()
+                        .filter(|e| is_layout_file(&e.file_name().to_string_lossy(), true))
+                        .map(|e| e.path()),
+                );
+            } else if path.is_file() && is_layout_file(&name, false) {
+                files.push(path);
+            }
+        }
+    }
+    files
+}
+
 impl ForecastSink {
+    /// Writes one file, remembering it as this run's.
+    fn put(&mut self, path: PathBuf, bytes: Vec<u8>) -> Result<(), NodeError> {
+        self.written.insert(path.clone());
+        self.writes.write(path, bytes)
+    }
+
+    /// Removes the files of the layout this run did not write, and folders left empty.
+    fn remove_previous_run(&mut self) -> Result<(), NodeError> {
+        for stale in layout_files(&self.params.out) {
+            if self.written.contains(&stale) {
+                continue;
+            }
+            std::fs::remove_file(&stale).map_err(|error| {
+                NodeError::fatal(format!(
+                    "{}: a previous run's file, which cannot be removed: {error}",
+                    stale.display()
+                ))
+            })?;
+            self.previous_run_files_removed += 1;
+            // Its folder, and the context folder above it, go once empty (remove_dir refuses
+            // a folder that is not).
+            if let Some(parent) = stale.parent() {
+                let _ = std::fs::remove_dir(parent);
+                if let Some(context) = parent.parent().filter(|p| *p != self.params.out) {
+                    let _ = std::fs::remove_dir(context);
+                }
+            }
+        }
+        if self.previous_run_files_removed > 0 {
+            tracing::info!(
+                out = %self.params.out.display(),
+                files = self.previous_run_files_removed,
+                "removed the files of a previous run that this one did not write"
+            );
+        }
+        Ok(())
+    }
+
     fn write_strips(&mut self, folder: &str) -> Result<(), NodeError> {
         let Some(mut columns) = self.strips.remove(folder) else {
             return Ok(());
@@ -157,25 +259,31 @@ impl ForecastSink {
                 }
             }
             let bytes = png(&strip, &named.name)?;
-            self.writes.write(
-                self.params
-                    .out
-                    .join(folder)
-                    .join(format!("strip_{}.png", named.name)),
-                bytes,
-            )?;
+            let path = self
+                .params
+                .out
+                .join(folder)
+                .join(safe_file_name(&format!("strip_{}.png", named.name)));
+            self.put(path, bytes)?;
         }
         Ok(())
     }
 }
 
 impl Sink for ForecastSink {
+    fn start(&mut self) -> Result<(), NodeError> {
+        self._claim = Some(FolderClaim::acquire(&self.params.out).map_err(NodeError::fatal)?);
+        Ok(())
+    }
+
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
         let rendered = inputs.get::<RenderedFuture>("rendered")?;
         let view = &rendered.view;
+        self.views += 1;
         if view.method != self.method {
             return Ok(());
         }
+        self.views_written += 1;
         let folder = context_folder(view);
         let dir = self
             .params
@@ -184,8 +292,8 @@ impl Sink for ForecastSink {
             .join(horizon_folder(view.horizon_s));
         if let Some(images) = &rendered.images {
             for named in &images.images {
-                self.writes.write(
-                    dir.join(format!("{}.png", named.name)),
+                self.put(
+                    dir.join(safe_file_name(&format!("{}.png", named.name))),
                     png(&named.image, &named.name)?,
                 )?;
             }
@@ -194,27 +302,27 @@ impl Sink for ForecastSink {
             "bevworld forecast, ego frame; context {}; horizon {} s; timestamp_us {}",
             view.context.frame_token, view.horizon_s, view.latent.meta.time_of_validity_us
         );
-        let forecast_points = rendered.lidar.as_ref().map(PointCloud::ego_points);
-        let truth_points = view.truth.as_ref().map(|t| t.lidar.scene_ego_points());
+        let forecast_points = rendered.lidar.as_ref().map(PointCloud::ego_returns);
+        let truth_points = view.truth.as_ref().map(|t| t.lidar.scene_ego_returns());
         if let Some(points) = &forecast_points {
-            self.writes
-                .write(dir.join("LIDAR_TOP.ply"), ply(points, &comment)?)?;
+            let comment = format!("{comment}; intensity: the rendered ray's opacity 1 - T");
+            self.put(dir.join("LIDAR_TOP.ply"), ply(points, &comment)?)?;
         }
         if let Some(points) = &truth_points {
-            self.writes.write(
+            self.put(
                 dir.join("LIDAR_TOP_true.ply"),
                 ply(
                     points,
                     &format!(
-                        "bevworld logged sweep, ego frame; {}",
+                        "bevworld logged sweep, ego frame; {}; intensity as logged",
                         view.rays.frame_token
                     ),
                 )?,
             )?;
         }
         if let Some(points) = &forecast_points {
-            let flat = |points: &[[f32; 3]]| -> Vec<[f32; 2]> {
-                points.iter().map(|p| [p[0], p[1]]).collect()
+            let flat = |points: &[LidarPoint]| -> Vec<[f32; 2]> {
+                points.iter().map(|p| [p.x, p.y]).collect()
             };
             let size = 480;
             let half = self.params.top_down_half_extent_m;
@@ -251,8 +359,7 @@ impl Sink for ForecastSink {
             let mut pair = RgbImage::new(2 * size, size);
             image::imageops::replace(&mut pair, &left, 0, 0);
             image::imageops::replace(&mut pair, &right, i64::from(size), 0);
-            self.writes
-                .write(dir.join("top_down.png"), png(&pair, "top_down")?)?;
+            self.put(dir.join("top_down.png"), png(&pair, "top_down")?)?;
         }
         if let Some(images) = &rendered.images {
             let columns = self.strips.entry(folder.clone()).or_default();
@@ -273,7 +380,30 @@ impl Sink for ForecastSink {
         for folder in folders {
             self.write_strips(&folder)?;
         }
-        self.writes.flush()
+        self.writes.flush()?;
+        self.remove_previous_run()
+    }
+
+    fn report(&self) -> Figures {
+        Figures::from([
+            ("views".to_string(), self.views as f64),
+            ("views_written".to_string(), self.views_written as f64),
+            ("files_written".to_string(), self.written.len() as f64),
+            (
+                "previous_run_files_removed".to_string(),
+                self.previous_run_files_removed as f64,
+            ),
+        ])
+    }
+
+    fn nothing_made(&self) -> Option<String> {
+        (self.views_written == 0 && self.views > 0).then(|| {
+            format!(
+                "none of the {} views it received was of method '{}', the one it writes",
+                self.views,
+                self.method.name()
+            )
+        })
     }
 }
 
@@ -294,9 +424,14 @@ pub fn register(registry: &mut Registry) {
             })?;
             Ok(Node::Sink(Box::new(ForecastSink {
                 method,
+                writes: Writes::new(params.out.clone(), 16),
                 params,
-                writes: Writes::new(16),
                 strips: BTreeMap::new(),
+                written: BTreeSet::new(),
+                views: 0,
+                views_written: 0,
+                previous_run_files_removed: 0,
+                _claim: None,
             })))
         },
     );

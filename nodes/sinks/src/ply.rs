@@ -113,7 +113,13 @@ pub fn encode_ply(
         PlyEncoding::Ascii => Encoding::Ascii,
     };
     if let Some(comment) = comment {
-        ply.header.comments.push(comment.to_string());
+        // A header comment is one line: a token or scene name holding a line break (they come
+        // from datasets) must not end the header early or make the file unwritable.
+        let one_line: String = comment
+            .chars()
+            .map(|c| if c.is_control() { ' ' } else { c })
+            .collect();
+        ply.header.comments.push(one_line);
     }
     let mut vertex = ElementDef::new("vertex".to_string());
     for name in ["x", "y", "z", "intensity"] {

@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 
+use bevworld_graph::io::FolderClaim;
 use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink};
 use bevworld_types::PointCloud;
 use glam::DVec3;
@@ -41,9 +42,16 @@ fn default_name() -> String {
 pub struct PlySink {
     params: PlySinkParams,
     writes: Writes,
+    /// The output folder, held for this run (`FolderClaim`).
+    _claim: Option<FolderClaim>,
 }
 
 impl Sink for PlySink {
+    fn start(&mut self) -> Result<(), NodeError> {
+        self._claim = Some(FolderClaim::acquire(&self.params.out).map_err(NodeError::fatal)?);
+        Ok(())
+    }
+
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
         let cloud = inputs.get::<PointCloud>("cloud")?;
         let frame = inputs.header().map(|h| h.seq).unwrap_or(0);
@@ -101,18 +109,22 @@ pub fn register(registry: &mut Registry) {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));
             }
-            if params.name.is_empty() || params.name.contains('/') {
+            if params.name.is_empty()
+                || bevworld_graph::io::safe_file_name(&params.name) != params.name
+            {
                 return Err(ParamError::field(
                     "name",
                     format!("'{}' is not a file name", params.name),
-                ));
+                )
+                .with_accepted("letters, digits, '.', '_', '+' and '-'"));
             }
             Ok(())
         },
         |params: PlySinkParams| {
             Ok(Node::Sink(Box::new(PlySink {
+                writes: Writes::new(params.out.clone(), 8),
                 params,
-                writes: Writes::new(8),
+                _claim: None,
             })))
         },
     );

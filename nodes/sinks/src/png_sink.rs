@@ -4,6 +4,7 @@
 use std::io::Cursor;
 use std::path::PathBuf;
 
+use bevworld_graph::io::{FolderClaim, safe_file_name};
 use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink};
 use bevworld_types::ImageSet;
 use image::ImageFormat;
@@ -24,9 +25,16 @@ pub struct PngSinkParams {
 pub struct PngSink {
     params: PngSinkParams,
     writes: Writes,
+    /// The output folder, held for this run (`FolderClaim`).
+    _claim: Option<FolderClaim>,
 }
 
 impl Sink for PngSink {
+    fn start(&mut self) -> Result<(), NodeError> {
+        self._claim = Some(FolderClaim::acquire(&self.params.out).map_err(NodeError::fatal)?);
+        Ok(())
+    }
+
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
         let set = inputs.get::<ImageSet>("images")?;
         let frame = inputs.header().map(|h| h.seq).unwrap_or(0);
@@ -40,7 +48,10 @@ impl Sink for PngSink {
                     NodeError::item(format!("encoding {} as PNG: {error}", named.name))
                 })?;
             self.writes.write(
-                folder.join(format!("{}{}.png", named.name, self.params.suffix)),
+                folder.join(safe_file_name(&format!(
+                    "{}{}.png",
+                    named.name, self.params.suffix
+                ))),
                 bytes,
             )?;
         }
@@ -67,8 +78,9 @@ pub fn register(registry: &mut Registry) {
         },
         |params: PngSinkParams| {
             Ok(Node::Sink(Box::new(PngSink {
+                writes: Writes::new(params.out.clone(), 16),
                 params,
-                writes: Writes::new(16),
+                _claim: None,
             })))
         },
     );

@@ -1,21 +1,25 @@
 //! Atomic file writes handed to the I/O pool, with a bound on how many are in flight so a slow
-//! disk applies backpressure instead of growing memory.
+//! disk applies backpressure instead of growing memory. Every write must land inside the
+//! sink's folder: names come from datasets, and a path that leaves the folder is refused.
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
 
 use bevworld_graph::NodeError;
-use bevworld_graph::io::{PendingWrite, write_atomic};
+use bevworld_graph::io::{PendingWrite, lies_inside, write_atomic};
 
 pub struct Writes {
+    /// The sink's folder: no write lands outside it.
+    root: PathBuf,
     pending: VecDeque<PendingWrite>,
     max_in_flight: usize,
     written: u64,
 }
 
 impl Writes {
-    pub fn new(max_in_flight: usize) -> Self {
+    pub fn new(root: PathBuf, max_in_flight: usize) -> Self {
         Self {
+            root,
             pending: VecDeque::new(),
             max_in_flight: max_in_flight.max(1),
             written: 0,
@@ -24,6 +28,13 @@ impl Writes {
 
     /// Queues a write; waits for the oldest one first when too many are in flight.
     pub fn write(&mut self, path: PathBuf, bytes: Vec<u8>) -> Result<(), NodeError> {
+        if !lies_inside(&self.root, &path) {
+            return Err(NodeError::fatal(format!(
+                "refusing to write {}: it is not inside the sink's folder {}",
+                path.display(),
+                self.root.display()
+            )));
+        }
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent).map_err(|error| {
                 NodeError::fatal(format!(

@@ -141,6 +141,15 @@ fn safetensors_files_parse_back() {
         &[features("a", 1.0)],
     );
     let bytes = std::fs::read(dir.path().join("a.safetensors")).unwrap();
+    // A file copied away from its index still says what made it.
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    let metadata = header.metadata().clone().unwrap();
+    assert_eq!(
+        metadata.get("weights_hash").map(String::as_str),
+        Some("none")
+    );
+    assert_eq!(metadata.get("model").map(String::as_str), Some("test"));
+    assert_eq!(metadata.get("frame_token").map(String::as_str), Some("a"));
     let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
     let view = tensors.tensor("features").unwrap();
     assert_eq!(

@@ -59,6 +59,36 @@ impl PointCloud {
         self.ego_points_of(self.points.iter())
     }
 
+    /// The scene's returns (`scene_indices`) moved into the ego frame, each with its
+    /// intensity and ring: the logged sweep as a file of it should hold it.
+    pub fn scene_ego_returns(&self) -> Vec<LidarPoint> {
+        self.ego_returns_of(self.scene_indices().into_iter().map(|i| &self.points[i]))
+    }
+
+    /// Every return moved into the ego frame, with its intensity and ring.
+    pub fn ego_returns(&self) -> Vec<LidarPoint> {
+        self.ego_returns_of(self.points.iter())
+    }
+
+    fn ego_returns_of<'a>(&self, points: impl Iterator<Item = &'a LidarPoint>) -> Vec<LidarPoint> {
+        let ego_from_lidar = self.ego_from_lidar;
+        points
+            .map(|p| {
+                let q = ego_from_lidar.transform_point3(glam::DVec3::new(
+                    f64::from(p.x),
+                    f64::from(p.y),
+                    f64::from(p.z),
+                ));
+                LidarPoint {
+                    x: q.x as f32,
+                    y: q.y as f32,
+                    z: q.z as f32,
+                    ..*p
+                }
+            })
+            .collect()
+    }
+
     fn ego_points_of<'a>(&self, points: impl Iterator<Item = &'a LidarPoint>) -> Vec<[f32; 3]> {
         let ego_from_lidar = self.ego_from_lidar;
         points

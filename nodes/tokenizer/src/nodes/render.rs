@@ -176,7 +176,8 @@ impl RenderNode {
 }
 
 /// The rendered depths along the sweep's rays as points in the LiDAR frame, each with the ring
-/// of the return its ray came from.
+/// of the return its ray came from. The tokenizer does not model reflectance: a point's
+/// intensity is its ray's opacity `1 − T` in [0, 1], how surely the ray met a surface.
 fn rendered_sweep(frame: &SensorFrame, lidar: &RenderedRays, rays: &FrameRays) -> PointCloud {
     let cloud = &frame.lidar;
     let lidar_from_ego = cloud.ego_from_lidar.inverse();
@@ -185,8 +186,9 @@ fn rendered_sweep(frame: &SensorFrame, lidar: &RenderedRays, rays: &FrameRays) -
         .directions
         .iter()
         .zip(&lidar.depth)
+        .zip(&lidar.opacity)
         .zip(&rays.lidar_points)
-        .map(|((d, &depth), &index)| {
+        .map(|(((d, &depth), &opacity), &index)| {
             let direction =
                 lidar_from_ego.transform_vector3(DVec3::new(d[0].into(), d[1].into(), d[2].into()));
             let p = direction * f64::from(depth);
@@ -194,7 +196,7 @@ fn rendered_sweep(frame: &SensorFrame, lidar: &RenderedRays, rays: &FrameRays) -
                 x: p.x as f32,
                 y: p.y as f32,
                 z: p.z as f32,
-                intensity: 0.0,
+                intensity: opacity.clamp(0.0, 1.0),
                 ring: cloud.points.get(index).map_or(0, |p| p.ring),
             }
         })
