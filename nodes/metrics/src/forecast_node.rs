@@ -97,7 +97,8 @@ type LatentGroup = BTreeMap<ForecastMethod, Arc<BevFeatures>>;
 
 pub struct ForecastMetrics {
     roi: Roi,
-    stats: Option<LatentStats>,
+    /// The latent statistics and the file they came from.
+    stats: Option<(LatentStats, PathBuf)>,
     json: Option<PathBuf>,
     print: bool,
     /// By (horizon in µs, frames ahead), then method name (with the raw baselines).
@@ -319,12 +320,21 @@ impl Sink for ForecastMetrics {
     }
 
     fn finish(&mut self) -> Result<(), NodeError> {
-        if let Some(stats) = self.stats.clone() {
+        if let Some((stats, path)) = self.stats.clone() {
             let groups = std::mem::take(&mut self.latents);
             for ((_, horizon_us), group) in groups {
                 let Some(oracle) = group.get(&ForecastMethod::Oracle) else {
                     continue;
                 };
+                // Statistics of another latent would shift every score, silently.
+                if oracle.channels.len() != stats.mean.len() {
+                    return Err(NodeError::fatal(format!(
+                        "{}: statistics of {} channels, but the latents scored have {}",
+                        path.display(),
+                        stats.mean.len(),
+                        oracle.channels.len()
+                    )));
+                }
                 let mut truth = oracle.data.clone();
                 stats.standardize(&mut truth);
                 for (method, latent) in &group {
@@ -377,6 +387,15 @@ impl Sink for ForecastMetrics {
         }
         figures
     }
+
+    fn nothing_made(&self) -> Option<String> {
+        self.cells.is_empty().then(|| {
+            format!(
+                "nothing scored: {} rendered views had no logged future frame (a forecast of a manoeuvre, or a log that ends within the horizon)",
+                self.without_truth
+            )
+        })
+    }
 }
 
 fn build(params: &ForecastMetricsParams) -> Result<ForecastMetrics, ParamError> {
@@ -389,7 +408,7 @@ fn build(params: &ForecastMetricsParams) -> Result<ForecastMetrics, ParamError> 
         .as_ref()
         .map(|path| {
             LatentStatsFile::load(path)
-                .map(|file| file.stats)
+                .map(|file| (file.stats, path.clone()))
                 .map_err(|error| ParamError::field("latent_stats", error.to_string()))
         })
         .transpose()?;

@@ -384,6 +384,28 @@ fn a_config_that_cannot_be_generated_is_refused_naming_its_fields() {
         ..tiny(0)
     };
     assert!(edge.problems().is_empty(), "{:?}", edge.problems());
+    // A branch needs a sensor frame after it: 4 s at 12 Hz ends at tick 47, 3.917 s.
+    let branched = |at_s: f64| SynthConfig {
+        seconds: 4.0,
+        branch: Some(bevworld_sensors::synth::Branch {
+            at_s,
+            manoeuvres: vec![
+                bevworld_types::Manoeuvre::Keep,
+                bevworld_types::Manoeuvre::Stop,
+            ],
+        }),
+        ..tiny(0)
+    };
+    for at_s in [3.99, 3.95, 47.0 * 0.083_333] {
+        let problems = branched(at_s).problems();
+        assert!(
+            problems
+                .iter()
+                .any(|p| p.contains("no sensor frame after it")),
+            "{at_s}: {problems:?}"
+        );
+    }
+    assert!(branched(3.9).problems().is_empty());
 }
 
 #[test]

@@ -93,6 +93,40 @@ impl ActionStats {
         })
     }
 
+    /// Refuses statistics that cannot normalise an action: a mean that is not finite, a
+    /// spread that is not a finite number > 0 (a division by zero, or every action's sign
+    /// flipped), none counted, or a range that is not finite or runs backwards. Returns the
+    /// field at fault (`std[2]`) and why.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        if self.count == 0 {
+            return Err(("count".into(), "0: statistics of no actions".into()));
+        }
+        for k in 0..ACTION_FEATURES {
+            let (mean, std) = (self.mean[k], self.std[k]);
+            if !mean.is_finite() {
+                return Err((format!("mean[{k}]"), format!("{mean} is not finite")));
+            }
+            if !(std.is_finite() && std > 0.0) {
+                return Err((
+                    format!("std[{k}]"),
+                    format!("{std} is not a finite number > 0: actions would be divided by it"),
+                ));
+            }
+        }
+        if let Some(range) = &self.range {
+            for k in 0..ACTION_FEATURES {
+                let (min, max) = (range.min[k], range.max[k]);
+                if !(min.is_finite() && max.is_finite() && min <= max) {
+                    return Err((
+                        format!("range[{k}]"),
+                        format!("[{min}, {max}] is not a finite range with min <= max"),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Whether `action` lies outside what training saw: past the training range in any feature
     /// by more than `RANGE_MARGIN_STD` of its spread, or, for statistics without a recorded
     /// range, more than `OUTSIDE_STD` standard deviations from the mean. The model still
@@ -171,6 +205,47 @@ mod tests {
         };
         assert!(!old.outside_training(&action(12.5, 0.0)));
         assert!(old.outside_training(&action(30.0, 0.0)));
+    }
+
+    #[test]
+    fn statistics_that_cannot_normalise_are_refused_naming_the_field() {
+        let actions = [action(8.0, 0.2), action(10.0, -0.2), action(12.0, 0.0)];
+        let good = ActionStats::compute(&actions).unwrap();
+        assert_eq!(good.check(), Ok(()));
+        for (field, broken) in [
+            ("std[0]", {
+                let mut s = good.clone();
+                s.std[0] = 0.0;
+                s
+            }),
+            ("std[1]", {
+                let mut s = good.clone();
+                s.std[1] = -0.2;
+                s
+            }),
+            ("mean[4]", {
+                let mut s = good.clone();
+                s.mean[4] = f64::NAN;
+                s
+            }),
+            (
+                "count",
+                ActionStats {
+                    count: 0,
+                    ..good.clone()
+                },
+            ),
+            ("range[0]", {
+                let mut s = good.clone();
+                if let Some(r) = s.range.as_mut() {
+                    r.min[0] = 20.0;
+                }
+                s
+            }),
+        ] {
+            let (found, message) = broken.check().unwrap_err();
+            assert_eq!(found, field, "{message}");
+        }
     }
 
     #[test]

@@ -54,7 +54,9 @@ pub struct DdimConfig {
 pub enum DdimError {
     #[error("sampler steps {steps}: must be 1 to T = {max}")]
     Steps { steps: usize, max: usize },
-    #[error("sampler eta {0}: must be a finite number >= 0")]
+    #[error(
+        "sampler eta {0}: must lie in [0, 1] (0 samples deterministically, 1 draws the fresh noise of DDPM; above 1 each step adds more noise than the process takes away, and the forecast diverges)"
+    )]
     Eta(f64),
     #[error(transparent)]
     Shrink(#[from] ShrinkError),
@@ -80,7 +82,7 @@ impl DdimConfig {
                 max: schedule.steps(),
             });
         }
-        if !(self.eta.is_finite() && self.eta >= 0.0) {
+        if !(self.eta.is_finite() && (0.0..=1.0).contains(&self.eta)) {
             return Err(DdimError::Eta(self.eta));
         }
         if let Some(shrink) = &self.shrink {

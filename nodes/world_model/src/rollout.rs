@@ -31,6 +31,14 @@ pub enum RolloutError {
     },
     #[error("context latent {index} holds a non-finite value")]
     NonFinite { index: usize },
+    /// A motion no road vehicle makes (`EgoAction::impossible`): a unit error, a typo or a
+    /// corrupt pose, never forecast.
+    #[error("the action into {which} frame {index} is impossible: {reason}")]
+    ImpossibleAction {
+        which: &'static str,
+        index: usize,
+        reason: String,
+    },
     #[error(transparent)]
     Sampler(#[from] DdimError),
 }
@@ -83,6 +91,17 @@ impl Rollout<'_> {
                 expected: n,
                 found: future_actions.len(),
             });
+        }
+        for (which, actions) in [("context", context_actions), ("future", future_actions)] {
+            for (index, action) in actions.iter().enumerate() {
+                if let Some(reason) = action.impossible() {
+                    return Err(RolloutError::ImpossibleAction {
+                        which,
+                        index,
+                        reason,
+                    });
+                }
+            }
         }
         let grid = self.grid();
         let mut standardised = Vec::with_capacity(p * grid.len());

@@ -1,12 +1,18 @@
 //! World-model weights on disk: a burnpack file (`world-model-tiny.bpk`) and beside it
 //! `world-model-tiny.meta.json`, which names the model config, the tokenizer whose latents it
 //! was trained on (its name and weights digest) and the action statistics it normalises with.
-//! Loading refuses weights that do not fit the config, hold a non-finite value, or pair with
-//! another tokenizer.
+//!
+//! The metadata seal themselves and their weights: `weights_hash` is the burnpack file's
+//! digest and `meta_hash` the digest of the metadata's other fields as written. Loading
+//! refuses weights that were changed after they were written (a byte flipped, a file swapped)
+//! and metadata edited by hand (an action mean moved, a tokenizer digest replaced), each
+//! naming the file at fault, as well as weights that do not fit the config, hold a non-finite
+//! value, normalise with impossible statistics or pair with another tokenizer.
 
 use std::path::{Path, PathBuf};
 
 use bevworld_blocks::module_file::{self, ModuleFileError};
+use bevworld_types::bytes_digest;
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -34,12 +40,61 @@ pub struct WeightsMeta {
     pub command: String,
 }
 
+/// The metadata file: `WeightsMeta`'s fields and the two digests that seal them.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MetaFile {
+    model: String,
+    tokenizer_model: String,
+    tokenizer_weights_hash: String,
+    action_stats: ActionStats,
+    steps: usize,
+    command: String,
+    /// `file_digest` of the burnpack file beside it.
+    weights_hash: String,
+    /// `meta_digest` of the fields above.
+    meta_hash: String,
+}
+
+/// The digest of metadata as read from a file: their compact JSON, in the struct's order.
+fn meta_digest(meta: &WeightsMeta) -> Result<String, String> {
+    serde_json::to_vec(meta)
+        .map(|bytes| bytes_digest(&bytes))
+        .map_err(|e| e.to_string())
+}
+
+/// The digest the metadata will have when read back: serde_json's parser may land a float one
+/// unit in the last place from the value it printed, so the seal is taken of the values a
+/// reader gets, which every reader gets alike.
+fn sealing_digest(meta: &WeightsMeta) -> Result<String, String> {
+    let text = serde_json::to_vec(meta).map_err(|e| e.to_string())?;
+    let read_back: WeightsMeta = serde_json::from_slice(&text).map_err(|e| e.to_string())?;
+    meta_digest(&read_back)
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum WorldModelWeightsError {
     #[error(transparent)]
     Module(#[from] ModuleFileError),
     #[error("world model weights {path}: {message}")]
     Meta { path: PathBuf, message: String },
+    #[error(
+        "world model weights {path} were changed after they were written: the file digests to {found}, but {meta} records {recorded}; restore the weights that go with it, or retrain"
+    )]
+    WeightsChanged {
+        path: PathBuf,
+        meta: PathBuf,
+        found: String,
+        recorded: String,
+    },
+    #[error(
+        "world model metadata {path} was edited after it was written: its fields digest to {found}, but it records meta_hash {recorded}; restore the file the training run wrote, or retrain"
+    )]
+    MetaEdited {
+        path: PathBuf,
+        found: String,
+        recorded: String,
+    },
     #[error(
         "world model weights {path} were trained on the latents of tokenizer '{trained_model}' with weights {trained_hash}, not '{model}' with weights {hash}; use the tokenizer they pair with, or retrain with `bevworld train world-model`"
     )]
@@ -65,7 +120,8 @@ pub struct WorldModelWeights {
     pub digest: String,
 }
 
-/// Writes the weights and their metadata, each replaced whole.
+/// Writes the weights and their metadata, sealed (`weights_hash`, `meta_hash`), each replaced
+/// whole.
 pub fn save_weights(
     model: &WorldModel,
     meta: &WeightsMeta,
@@ -77,14 +133,37 @@ pub fn save_weights(
         path: meta_path.clone(),
         message,
     };
-    let text = serde_json::to_string_pretty(meta).map_err(|e| error(e.to_string()))?;
-    let partial = meta_path.with_extension("json.tmp");
-    std::fs::write(&partial, text).map_err(|e| error(e.to_string()))?;
-    std::fs::rename(&partial, &meta_path).map_err(|e| error(e.to_string()))
+    let weights_hash = bevworld_types::file_digest(path).map_err(|e| error(e.to_string()))?;
+    let meta = meta.clone();
+    let file = MetaFile {
+        meta_hash: sealing_digest(&meta).map_err(error)?,
+        weights_hash,
+        model: meta.model,
+        tokenizer_model: meta.tokenizer_model,
+        tokenizer_weights_hash: meta.tokenizer_weights_hash,
+        action_stats: meta.action_stats,
+        steps: meta.steps,
+        command: meta.command,
+    };
+    let text = serde_json::to_string_pretty(&file).map_err(|e| error(e.to_string()))?;
+    bevworld_graph::io::write_atomic_now(&meta_path, text.as_bytes())
+        .map_err(|e| error(e.to_string()))
 }
 
-/// Reads the metadata beside `path`.
+/// Metadata read and checked: its fields, and the digest it records for the weights.
+pub struct SealedMeta {
+    pub meta: WeightsMeta,
+    pub weights_hash: String,
+}
+
+/// Reads the metadata beside `path`: every field present and of its type, the action
+/// statistics possible, and the fields as they were written (`meta_hash`).
 pub fn load_meta(path: &Path) -> Result<WeightsMeta, WorldModelWeightsError> {
+    load_sealed_meta(path).map(|sealed| sealed.meta)
+}
+
+/// `load_meta`, with the weights' recorded digest.
+pub fn load_sealed_meta(path: &Path) -> Result<SealedMeta, WorldModelWeightsError> {
     let meta_path = meta_path_for(path);
     let error = |message: String| WorldModelWeightsError::Meta {
         path: meta_path.clone(),
@@ -92,8 +171,50 @@ pub fn load_meta(path: &Path) -> Result<WeightsMeta, WorldModelWeightsError> {
     };
     let text = std::fs::read_to_string(&meta_path).map_err(|e| error(e.to_string()))?;
     let mut deserializer = serde_json::Deserializer::from_str(&text);
-    serde_path_to_error::deserialize(&mut deserializer)
-        .map_err(|e| error(format!("field `{}`: {}", e.path(), e.inner())))
+    let file: MetaFile = serde_path_to_error::deserialize(&mut deserializer)
+        .map_err(|e| error(format!("field `{}`: {}", e.path(), e.inner())))?;
+    let meta = WeightsMeta {
+        model: file.model,
+        tokenizer_model: file.tokenizer_model,
+        tokenizer_weights_hash: file.tokenizer_weights_hash,
+        action_stats: file.action_stats,
+        steps: file.steps,
+        command: file.command,
+    };
+    meta.action_stats
+        .check()
+        .map_err(|(field, message)| error(format!("field `action_stats.{field}`: {message}")))?;
+    let found = meta_digest(&meta).map_err(error)?;
+    if found != file.meta_hash {
+        return Err(WorldModelWeightsError::MetaEdited {
+            path: meta_path,
+            found,
+            recorded: file.meta_hash,
+        });
+    }
+    Ok(SealedMeta {
+        meta,
+        weights_hash: file.weights_hash,
+    })
+}
+
+/// Refuses weights whose bytes are not the ones their metadata were written with; returns
+/// their digest.
+pub fn check_weights_digest(path: &Path, recorded: &str) -> Result<String, WorldModelWeightsError> {
+    let found = bevworld_types::file_digest(path).map_err(|e| ModuleFileError::Io {
+        what: WHAT.into(),
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    if found != recorded {
+        return Err(WorldModelWeightsError::WeightsChanged {
+            path: path.to_path_buf(),
+            meta: meta_path_for(path),
+            found,
+            recorded: recorded.to_string(),
+        });
+    }
+    Ok(found)
 }
 
 /// Builds the model of `config` and loads its weights from `path`, checking that they were
@@ -105,7 +226,7 @@ pub fn load_weights(
     tokenizer: Option<(&str, &str)>,
     device: &Device,
 ) -> Result<WorldModelWeights, WorldModelWeightsError> {
-    let meta = load_meta(path)?;
+    let SealedMeta { meta, weights_hash } = load_sealed_meta(path)?;
     if meta.model != config.name {
         return Err(WorldModelWeightsError::Meta {
             path: meta_path_for(path),
@@ -126,12 +247,8 @@ pub fn load_weights(
             hash: hash.to_string(),
         });
     }
+    let digest = check_weights_digest(path, &weights_hash)?;
     let model = module_file::load_module(config.init(device), WHAT, &config.name, path)?;
-    let digest = bevworld_types::file_digest(path).map_err(|e| ModuleFileError::Io {
-        what: WHAT.into(),
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
     Ok(WorldModelWeights {
         model,
         meta,

@@ -197,6 +197,34 @@ fn a_replayed_history_waits_for_the_logged_future_and_flushes_the_end_of_the_log
     assert!(history.is_empty());
 }
 
+#[test]
+fn a_history_that_never_fills_says_how_many_frames_it_got_and_how_many_a_forecast_needs() {
+    // Reliability row 9: a dataset too short for the history used to end in "0 contexts",
+    // blamed on the log's future.
+    let mut history = LatentHistory::new(shape(3), None, 1.5, 0.2);
+    assert_eq!(
+        history.why_no_window(),
+        None,
+        "nothing taken, nothing to explain"
+    );
+    for t in [0.0, 0.5, 1.0] {
+        assert!(history.push(latent("a", t)).expect("push").is_empty());
+    }
+    assert!(history.push(latent("b", 0.0)).expect("push").is_empty());
+    assert!(history.flush().is_empty());
+    let why = history.why_no_window().expect("no window was made");
+    assert!(
+        why.contains("took 4 latent(s)") && why.contains("was 3") && why.contains("needs 4"),
+        "{why}"
+    );
+    // Four frames in a row make a window, and there is nothing to explain.
+    for t in [0.0, 0.5, 1.0, 1.5] {
+        history.push(latent("c", t)).expect("push");
+    }
+    assert_eq!(history.flush().len(), 1);
+    assert_eq!(history.why_no_window(), None);
+}
+
 fn rollout_params(actions: &str, horizons: &[f64]) -> DiffusionRolloutParams {
     DiffusionRolloutParams {
         model: WorldModelParams {
@@ -268,6 +296,163 @@ fn the_rollout_refuses_unknown_manoeuvres_and_horizons_it_does_not_make() {
     let mut eta = rollout_params("keep", &[1.0]);
     eta.eta = -1.0;
     assert!(refusal(&eta).0.starts_with("eta"));
+}
+
+/// A copy of the shipped weights and their metadata in a folder of the test's own, with the
+/// metadata's JSON edited by `edit` (nothing re-sealed), for the refusals of files that were
+/// changed after they were written.
+fn shipped_copy(name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> (PathBuf, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("bevworld-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let weights = dir.join("world-model-tiny.bpk");
+    std::fs::copy(
+        repo().join("nodes/world_model/weights/world-model-tiny.bpk"),
+        &weights,
+    )
+    .expect("weights");
+    let mut meta: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(repo().join("nodes/world_model/weights/world-model-tiny.meta.json"))
+            .expect("meta"),
+    )
+    .expect("json");
+    edit(&mut meta);
+    let meta_path = dir.join("world-model-tiny.meta.json");
+    std::fs::write(&meta_path, serde_json::to_vec_pretty(&meta).expect("json")).expect("write");
+    (weights, meta_path)
+}
+
+#[test]
+fn the_rollout_refuses_metadata_and_weights_changed_after_they_were_written() {
+    // Reliability rows 2 and 3: a spread of 0 or below, an action mean moved, a weights file
+    // overwritten. Each used to forecast NaN or nonsense with exit 0.
+    for (name, field, value, says) in [
+        ("std-zero", "std", 0.0, "action_stats.std[0]"),
+        ("std-negative", "std", -2.5, "action_stats.std[0]"),
+        (
+            "mean-moved",
+            "mean",
+            100.0,
+            "was edited after it was written",
+        ),
+    ] {
+        let (weights, meta_path) = shipped_copy(name, |meta| {
+            meta["action_stats"][field][0] = serde_json::json!(value);
+        });
+        let mut params = rollout_params("keep", &[1.0]);
+        params.model.weights = weights;
+        let (message, _) = refusal(&params);
+        assert!(
+            message.starts_with("weights") && message.contains(says),
+            "{name}: {message}"
+        );
+        assert!(
+            message.contains(&meta_path.display().to_string()),
+            "names the file at fault: {message}"
+        );
+    }
+    // The weights' bytes: 100,000 floats overwritten in the middle of the file.
+    let (weights, _) = shipped_copy("bytes", |_| {});
+    let mut bytes = std::fs::read(&weights).expect("weights");
+    let middle = bytes.len() / 2;
+    for b in &mut bytes[middle - 200_000..middle + 200_000] {
+        *b = 0x3f;
+    }
+    std::fs::write(&weights, bytes).expect("write");
+    let mut params = rollout_params("keep", &[1.0]);
+    params.model.weights = weights.clone();
+    let (message, _) = refusal(&params);
+    assert!(
+        message.contains("were changed after they were written")
+            && message.contains(&weights.display().to_string()),
+        "{message}"
+    );
+    // A tokenizer digest edited in the metadata is the metadata's fault, named as such, not
+    // the statistics file's.
+    let (weights, meta_path) = shipped_copy("tokenizer", |meta| {
+        meta["tokenizer_weights_hash"] = serde_json::json!("0000000000000000");
+    });
+    let mut params = rollout_params("keep", &[1.0]);
+    params.model.weights = weights;
+    let (message, _) = refusal(&params);
+    assert!(
+        message.starts_with("weights") && message.contains(&meta_path.display().to_string()),
+        "{message}"
+    );
+    // Whitespace and key order change nothing that is sealed.
+    let (weights, meta_path) = shipped_copy("respaced", |_| {});
+    let compact: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&meta_path).expect("meta")).expect("json");
+    std::fs::write(&meta_path, serde_json::to_vec(&compact).expect("json")).expect("write");
+    let mut params = rollout_params("keep", &[1.0]);
+    params.model.weights = weights;
+    assert!(diffusion_rollout::plan(&params).is_ok());
+}
+
+#[test]
+fn the_rollout_refuses_what_would_forecast_nonsense_and_names_a_horizon_as_its_frame() {
+    // Row 4: η past 1 adds more noise each step than the process removes.
+    for eta in [1.5, 10.0, 1e6, f64::NAN] {
+        let mut params = rollout_params("keep", &[1.0]);
+        params.eta = eta;
+        let (message, _) = refusal(&params);
+        assert!(
+            message.starts_with("eta") && message.contains("[0, 1]"),
+            "{message}"
+        );
+    }
+    let mut params = rollout_params("keep", &[1.0]);
+    params.eta = 1.0;
+    assert!(diffusion_rollout::plan(&params).is_ok(), "DDPM's η = 1");
+    // Row 5: physically impossible actions are refused; unusual ones are forecast.
+    for (pair, says) in [
+        ([1e300, 0.0], "speed"),
+        ([8.0, 1e6], "yaw rate"),
+        ([-30.0, 0.0], "reversing"),
+        ([25.0, 1.0], "lateral"),
+    ] {
+        let mut list = rollout_params("list", &[1.0]);
+        let mut actions = vec![[8.0, 0.0]; 6];
+        actions[3] = pair;
+        list.action_list = Some(actions);
+        let (message, _) = refusal(&list);
+        assert!(
+            message.starts_with("action_list")
+                && message.contains("entry 3")
+                && message.contains(says),
+            "{pair:?}: {message}"
+        );
+    }
+    let mut unusual = rollout_params("list", &[1.0]);
+    unusual.action_list = Some(vec![[0.0, 0.0]; 6]);
+    assert!(
+        diffusion_rollout::plan(&unusual).is_ok(),
+        "standing still is outside the training range, not impossible"
+    );
+    // Row 6: statistics of 3 channels for a 4-channel latent.
+    let dir = std::env::temp_dir().join(format!("bevworld-stats3-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let mut stats: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(repo().join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"))
+            .expect("stats"),
+    )
+    .expect("json");
+    for key in ["mean", "std"] {
+        stats["stats"][key].as_array_mut().expect("list").pop();
+    }
+    let three = dir.join("three.stats.json");
+    std::fs::write(&three, serde_json::to_vec(&stats).expect("json")).expect("write");
+    let mut params = rollout_params("keep", &[1.0]);
+    params.latent_stats = three;
+    let (message, _) = refusal(&params);
+    assert!(
+        message.starts_with("latent_stats") && message.contains("3 channels"),
+        "{message}"
+    );
+    // Row 13: a horizon a hair off a frame is that frame, by name too.
+    let plan =
+        diffusion_rollout::plan(&rollout_params("keep", &[0.5000000001, 3.0])).expect("plan");
+    assert_eq!(plan.horizons, vec![(0.5, 1), (3.0, 6)]);
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

@@ -360,6 +360,21 @@ fn weights_load_only_with_their_config_and_their_tokenizer() {
     )
     .expect("load");
     assert_eq!(loaded.meta, meta(&c));
+    // The seal holds for statistics whose printed digits serde_json reads back one unit in the
+    // last place off (the shipped mean's 3.6262073335357203): what is sealed is what a reader
+    // gets.
+    let mut awkward = meta(&c);
+    awkward.action_stats.mean[2] = 3.6262073335357203;
+    awkward.action_stats.range = Some(bevworld_world_model::actions::ActionRange {
+        min: [1.6156046390533447, -0.9463784694671631, 0.8, -0.8, -0.4],
+        max: [12.9, 0.7, 6.5, 0.6, 0.4],
+    });
+    let awkward_path = dir.path().join("awkward.bpk");
+    save_weights(&model, &awkward, &awkward_path).expect("save");
+    let reread = load_weights(&c, &awkward_path, None, &device()).expect("sealed as read back");
+    for k in 0..5 {
+        assert!((reread.meta.action_stats.mean[k] - awkward.action_stats.mean[k]).abs() < 1e-12);
+    }
     let (latents, actions) = inputs(&c, 1, 2);
     let lv = levels(&c, 1, 40.0);
     assert_eq!(

@@ -124,9 +124,18 @@ impl SynthConfig {
             problems.push(format!("jpeg quality: {quality} (accepted: 1 to 100)"));
         }
         if let Some(branch) = &self.branch {
+            // The branches differ from the branch on; a branch with no sensor frame after it
+            // would be written as its own scene, byte for byte the same as `keep`'s.
+            let ticks = ((self.seconds * super::scene::RATE_HZ).round() as usize).max(1);
+            let last_frame_s = (ticks - 1) as f64 * super::scene::TICK_US as f64 * 1e-6;
             if !(branch.at_s.is_finite() && branch.at_s > 0.0 && branch.at_s < self.seconds) {
                 problems.push(format!(
                     "branch at: {} s (accepted: after 0 and before the scene's end, {} s)",
+                    branch.at_s, self.seconds
+                ));
+            } else if self.seconds.is_finite() && branch.at_s >= last_frame_s {
+                problems.push(format!(
+                    "branch at: {} s leaves no sensor frame after it: the last frame of a {} s scene is at {last_frame_s:.3} s, so every branch would be the same scene, byte for byte (accepted: before {last_frame_s:.3} s, or a longer scene)",
                     branch.at_s, self.seconds
                 ));
             }

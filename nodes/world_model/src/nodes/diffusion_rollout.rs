@@ -194,6 +194,15 @@ pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> 
                     ),
                 ));
             }
+            // Unusual actions are forecast and counted; impossible ones are refused here.
+            for (k, &[speed, yaw_rate]) in list.iter().enumerate() {
+                if let Some(reason) = constant_turn(speed, yaw_rate, interval).impossible() {
+                    return Err(ParamError::field(
+                        "action_list",
+                        format!("entry {k}, [{speed}, {yaw_rate}]: {reason}"),
+                    ));
+                }
+            }
             FutureActions::List(list.clone())
         }
         other => FutureActions::Manoeuvre(Manoeuvre::parse(other).ok_or_else(|| {
@@ -231,6 +240,9 @@ pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> 
                 ),
             ));
         }
+        // The forecast is the model's frame: a horizon within 1e-6 s of it is that frame,
+        // and is named, written and scored as it (0.5000000001 is +0.5s).
+        let h = frames * interval;
         if horizons.iter().any(|&(seen, _)| seen == h) {
             return Err(ParamError::field(
                 "horizons",
@@ -267,13 +279,32 @@ pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> 
         })?;
     let stats = LatentStatsFile::load(&params.latent_stats)
         .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
-    stats
-        .check_matches(
-            &meta.tokenizer_model,
-            &meta.tokenizer_weights_hash,
-            &params.latent_stats,
-        )
-        .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
+    if stats.model != meta.tokenizer_model || stats.weights_hash != meta.tokenizer_weights_hash {
+        return Err(ParamError::field(
+            "latent_stats",
+            format!(
+                "{} were computed for tokenizer '{}' with weights {}, but the world model's weights {} pair with '{}' with weights {} (as {} records): give the statistics of the tokenizer the world model was trained on",
+                params.latent_stats.display(),
+                stats.model,
+                stats.weights_hash,
+                params.model.weights.display(),
+                meta.tokenizer_model,
+                meta.tokenizer_weights_hash,
+                crate::weights::meta_path_for(&params.model.weights).display()
+            ),
+        ));
+    }
+    if stats.stats.mean.len() != config.latent_channels {
+        return Err(ParamError::field(
+            "latent_stats",
+            format!(
+                "{} holds statistics of {} channels, but the world model's latent has {}",
+                params.latent_stats.display(),
+                stats.stats.mean.len(),
+                config.latent_channels
+            ),
+        ));
+    }
     Ok(RolloutPlan {
         config,
         actions,

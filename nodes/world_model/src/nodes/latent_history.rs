@@ -84,6 +84,10 @@ pub struct LatentHistory {
     /// Kept frames that came later than the interval's tolerance (but before a gap).
     pub late_frames: u64,
     pub windows: u64,
+    /// Latents taken, and the most frames at the model's stride any one run of a scene held:
+    /// what a history that never filled says of its input.
+    pub latents: u64,
+    pub longest_run: usize,
 }
 
 impl LatentHistory {
@@ -102,7 +106,23 @@ impl LatentHistory {
             resets_gap: 0,
             late_frames: 0,
             windows: 0,
+            latents: 0,
+            longest_run: 0,
         }
+    }
+
+    /// Why no window was made, when none was: the frames a window needs against the most
+    /// that any scene gave in a row at the model's stride.
+    pub fn why_no_window(&self) -> Option<String> {
+        if self.windows > 0 || self.latents == 0 {
+            return None;
+        }
+        let interval = self.shape.interval_s;
+        let needed = self.shape.context + 1;
+        Some(format!(
+            "it took {} latent(s), and the most any scene gave in a row {interval} s apart (the world model's stride) was {}; a forecast needs {needed}: the model's {} condition frames and the one before them, for the motion into the oldest",
+            self.latents, self.longest_run, self.shape.context
+        ))
     }
 
     /// How early a frame may come and still take its slot.
@@ -209,6 +229,7 @@ impl LatentHistory {
     /// Takes one latent; returns the windows it completes.
     pub fn push(&mut self, latent: Arc<BevFeatures>) -> Result<Vec<LatentWindow>, String> {
         self.check(&latent)?;
+        self.latents += 1;
         let mut windows = Vec::new();
         if self.scene.as_deref() != Some(latent.meta.scene_name.as_str()) {
             if self.scene.is_some() {
@@ -263,6 +284,7 @@ impl LatentHistory {
         while self.kept.len() > self.capacity() {
             self.kept.pop_front();
         }
+        self.longest_run = self.longest_run.max(self.kept.len());
         if self.kept.len() == self.capacity() {
             self.emit(self.shape.context, &mut windows);
         }
@@ -300,6 +322,10 @@ impl Task for LatentHistoryNode {
         figures.insert("late_frames".into(), self.history.late_frames as f64);
         figures.insert("capacity".into(), self.history.capacity() as f64);
         figures
+    }
+
+    fn nothing_made(&self) -> Option<String> {
+        self.history.why_no_window()
     }
 }
 

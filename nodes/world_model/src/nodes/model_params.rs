@@ -9,7 +9,7 @@ use bevworld_graph::ParamError;
 use serde::{Deserialize, Serialize};
 
 use crate::config::WorldModelConfig;
-use crate::weights::{WeightsMeta, load_meta};
+use crate::weights::{WeightsMeta, check_weights_digest, load_sealed_meta};
 
 const ACCEPTED_MODEL: &str = "a world model config file, e.g. configs/models/world-model-tiny.yaml";
 const ACCEPTED_WEIGHTS: &str =
@@ -31,11 +31,15 @@ impl WorldModelParams {
         })
     }
 
-    /// The weights' metadata, checked to belong to the config.
+    /// The weights' metadata, checked to belong to the config and to the weights' bytes
+    /// (`weights_hash`), and to be as they were written (`meta_hash`).
     pub fn meta(&self, config: &WorldModelConfig) -> Result<WeightsMeta, ParamError> {
-        let meta = load_meta(&self.weights).map_err(|error| {
+        let refused = |error: crate::weights::WorldModelWeightsError| {
             ParamError::field("weights", error.to_string()).with_accepted(ACCEPTED_WEIGHTS)
-        })?;
+        };
+        let sealed = load_sealed_meta(&self.weights).map_err(refused)?;
+        check_weights_digest(&self.weights, &sealed.weights_hash).map_err(refused)?;
+        let meta = sealed.meta;
         if meta.model != config.name {
             return Err(ParamError::field(
                 "weights",
