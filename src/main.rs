@@ -28,7 +28,7 @@ struct Cli {
     /// Threads for the tensor ops of inference (rayon's global pool). Default: one per core,
     /// or RAYON_NUM_THREADS. Training spreads frames over its own threads and runs each
     /// frame's ops serially, so it never oversubscribes the cores.
-    #[arg(long, global = true, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
+    #[arg(long, global = true, value_name = "N", value_parser = thread_count, allow_negative_numbers = true)]
     threads: Option<u16>,
     #[command(subcommand)]
     command: Command,
@@ -114,10 +114,35 @@ fn main() -> ExitCode {
     }
     match dispatch(cli.command) {
         Ok(code) => code,
-        Err(error) => {
-            eprintln!("error: {}", describe_chain(&error));
-            ExitCode::from(1)
-        }
+        // One exit-code rule for every command (`commands::Refused`).
+        Err(error) => match error.downcast_ref::<commands::Refused>() {
+            Some(commands::Refused::Graph(diagnostics)) => {
+                eprintln!("{diagnostics}");
+                ExitCode::from(2)
+            }
+            Some(commands::Refused::Flag(_)) => {
+                eprintln!("error: {}", describe_chain(&error));
+                ExitCode::from(2)
+            }
+            None => {
+                eprintln!("error: {}", describe_chain(&error));
+                ExitCode::from(1)
+            }
+        },
+    }
+}
+
+/// `--threads`: a whole number of threads, at least 1. Negative values reach this parser
+/// (`allow_negative_numbers`), so that they are refused with the reason, not as an unknown
+/// flag.
+fn thread_count(text: &str) -> Result<u16, String> {
+    match text.trim().parse::<i64>() {
+        Ok(n) if (1..=i64::from(u16::MAX)).contains(&n) => Ok(n as u16),
+        Ok(n) => Err(format!(
+            "{n} threads: the tensor ops need at least 1 thread (and at most {})",
+            u16::MAX
+        )),
+        Err(_) => Err(format!("'{text}' is not a whole number of threads")),
     }
 }
 
@@ -244,9 +269,8 @@ fn export_nodes(path: &Path) -> Result<Vec<String>> {
 fn load(path: &Path, set: &[String]) -> Result<Option<bevworld_graph::ValidatedGraph>> {
     let overrides = set
         .iter()
-        .map(|text| Override::parse(text).map_err(anyhow::Error::from))
-        .collect::<Result<Vec<_>>>()
-        .context("bad --set")?;
+        .map(|text| Override::parse(text).map_err(|e| commands::refuse(format!("--set {e}"))))
+        .collect::<Result<Vec<_>>>()?;
     match bevworld_graph::load(path, &registry::registry(), &overrides) {
         Ok(graph) => Ok(Some(graph)),
         Err(diagnostics) => {

@@ -463,8 +463,9 @@ fn errors_say_each_cause_once_and_in_our_words() {
 
 #[test]
 fn bad_set_syntax_is_an_error() {
+    // Refused before any work: exit 2, as every refusal (`commands::Refused`).
     let output = bevworld(&["check", "configs/graphs/replay.yaml", "--set", "nodot"]);
-    assert_eq!(output.status.code(), Some(1));
+    assert_eq!(output.status.code(), Some(2));
     assert!(text(&output).contains("not node.key=value"));
 }
 
@@ -681,8 +682,8 @@ fn synth_refuses_jpeg_quality_seed_wrap_and_agent_floods() {
         let output = bevworld(&args);
         assert_eq!(
             output.status.code(),
-            Some(1),
-            "{flags:?}: {}",
+            Some(2),
+            "refused before any work: {flags:?}: {}",
             text(&output)
         );
         assert!(

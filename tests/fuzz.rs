@@ -1,6 +1,6 @@
 //! Every parser against generated and mutated input: the graph YAML, `--set`, the nuScenes
-//! tables, `.pcd.bin`, the KITTI files, camera images, PLY, npy, burnpack weights and a
-//! checkpoint's `state.json`.
+//! tables, `.pcd.bin`, the KITTI files, camera images, PLY, npy, burnpack weights, a
+//! checkpoint's `state.json`, a world model's `.meta.json` and the latent statistics file.
 //!
 //! The bar, for every case: no panic; no single allocation out of proportion to the input (a
 //! length field trusted before it is checked is how a 100-byte file asks for gigabytes); and an
@@ -863,4 +863,67 @@ fn copy_dir(from: &Path, to: &Path) {
             std::fs::copy(entry.path(), &target).expect("copy");
         }
     }
+}
+
+#[test]
+fn world_model_meta() {
+    use bevworld_world_model::weights::{load_sealed_meta, meta_path_for};
+    let dir = tempfile::tempdir().expect("dir");
+    let weights = dir.path().join("world-model-tiny.bpk");
+    let shipped = repo().join("nodes/world_model/weights/world-model-tiny.bpk");
+    std::fs::copy(&shipped, &weights).expect("weights");
+    let meta_path = meta_path_for(&weights);
+    let seed = std::fs::read(meta_path_for(&shipped)).expect("meta");
+    std::fs::write(&meta_path, &seed).expect("write");
+    let original = load_sealed_meta(&weights)
+        .expect("the shipped meta loads")
+        .meta;
+    let tally = Tally::default();
+    runner(192)
+        .run(&table_mutation(), |mutation| {
+            std::fs::write(&meta_path, mutate_table(&seed, &mutation)).expect("write");
+            match bounded(&tally, ".meta.json", || load_sealed_meta(&weights))? {
+                // The seal lets through only what changes nothing (spacing, key order).
+                Ok(read) => prop_assert_eq!(&read.meta, &original),
+                Err(error) => {
+                    let message = error.to_string();
+                    prop_assert!(names(&message, &meta_path), "{message}");
+                }
+            }
+            Ok(())
+        })
+        .expect(".meta.json");
+    tally.print(".meta.json");
+}
+
+#[test]
+fn latent_stats_file() {
+    use bevworld_types::LatentStatsFile;
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("tokenizer-tiny.stats.json");
+    let seed = std::fs::read(repo().join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"))
+        .expect("stats");
+    let tally = Tally::default();
+    runner(192)
+        .run(&table_mutation(), |mutation| {
+            std::fs::write(&path, mutate_table(&seed, &mutation)).expect("write");
+            match bounded(&tally, "stats.json", || LatentStatsFile::load(&path))? {
+                // Whatever loads can standardise: one finite mean and a finite spread > 0
+                // per channel.
+                Ok(file) => {
+                    let stats = &file.stats;
+                    prop_assert!(!stats.mean.is_empty());
+                    prop_assert_eq!(stats.mean.len(), stats.std.len());
+                    prop_assert!(stats.mean.iter().all(|m| m.is_finite()));
+                    prop_assert!(stats.std.iter().all(|s| s.is_finite() && *s > 0.0));
+                }
+                Err(error) => {
+                    let message = error.to_string();
+                    prop_assert!(names(&message, &path), "{message}");
+                }
+            }
+            Ok(())
+        })
+        .expect("stats.json");
+    tally.print("stats.json");
 }

@@ -31,7 +31,7 @@ pub struct ControlEvalArgs {
     #[arg(long, default_value = "configs/graphs/forecast.yaml")]
     pub graph: PathBuf,
     /// The horizon the forecasts are compared at, seconds.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, allow_negative_numbers = true)]
     pub horizon: f64,
     /// DDIM steps (default: the graph's).
     #[arg(long)]
@@ -128,6 +128,17 @@ fn context(
 }
 
 pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
+    let ahead = (args.horizon / 0.5).round();
+    if !(ahead >= 1.0 && (ahead * 0.5 - args.horizon).abs() <= 1e-9) {
+        return Err(crate::commands::refuse(format!(
+            "--horizon {}: forecasts are compared at a horizon after the context, one of the world model's future frames: a multiple of its 0.5 s frame interval from 0.5 s on (0.5, 1, ..., 3)",
+            args.horizon
+        )));
+    }
+    let ahead = ahead as usize;
+    if let Some(path) = &args.picture {
+        crate::commands::eval::check_picture_path("--picture", path)?;
+    }
     let options = DatasetOptions {
         format: DatasetFormat::Synth,
         skip_images: true,
@@ -141,10 +152,6 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
             "{} has no branched scenes (named <scene>-<manoeuvre>): make one with `bevworld synth --branch-at B`",
             args.data.display()
         );
-    }
-    let ahead = (args.horizon / 0.5).round() as usize;
-    if ahead == 0 || ((ahead as f64) * 0.5 - args.horizon).abs() > 1e-9 {
-        bail!("--horizon {}: a multiple of 0.5 s", args.horizon);
     }
     // The history needs the model's condition frames and one more before them.
     let history = 3;

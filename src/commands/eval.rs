@@ -304,6 +304,27 @@ fn chamfer_command(args: &ChamferArgs) -> Result<ExitCode> {
     let pred = read_cloud(&args.pred, args.format).context("--pred")?;
     let gt = read_cloud(&args.gt, args.format).context("--gt")?;
     let result = chamfer_in_roi(&pred, &gt, &args.roi.roi());
+    // An empty cloud has no Chamfer distance: 0 would score predicting nothing as perfect.
+    // Reported as empty, and the command fails, as the graph's metrics count such clouds.
+    if result.pred_points == 0 || result.gt_points == 0 {
+        let empty = match (result.pred_points, result.gt_points) {
+            (0, 0) => "both",
+            (0, _) => "pred",
+            _ => "gt",
+        };
+        if args.json {
+            println!(
+                "{}",
+                serde_json::json!({"chamfer": null, "empty": empty, "pred_points": result.pred_points, "gt_points": result.gt_points})
+            );
+        }
+        bail!(
+            "no Chamfer distance: {} predicted and {} ground-truth points in the ROI ({}); an empty cloud is not a perfect match",
+            result.pred_points,
+            result.gt_points,
+            args.roi.preset()
+        );
+    }
     if args.json {
         println!(
             "{}",
@@ -501,9 +522,45 @@ fn world_model(args: &WorldModelEvalArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// Refuses a picture's path before any work: a folder, a missing folder, or a name that is
+/// not `.png` would fail only after the whole evaluation.
+pub fn check_picture_path(flag: &str, path: &Path) -> Result<()> {
+    if path.is_dir() {
+        return Err(super::refuse(format!(
+            "{flag} {}: is a folder; give a file name ending in .png",
+            path.display()
+        )));
+    }
+    if path
+        .extension()
+        .is_none_or(|e| !e.eq_ignore_ascii_case("png"))
+    {
+        return Err(super::refuse(format!(
+            "{flag} {}: pictures are written as PNG; give a file name ending in .png",
+            path.display()
+        )));
+    }
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty())
+        && !parent.is_dir()
+    {
+        return Err(super::refuse(format!(
+            "{flag} {}: the folder {} does not exist",
+            path.display(),
+            parent.display()
+        )));
+    }
+    Ok(())
+}
+
 fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
     if !args.data.is_dir() {
-        bail!("--data {}: no such folder", args.data.display());
+        return Err(super::refuse(format!(
+            "--data {}: no such folder",
+            args.data.display()
+        )));
+    }
+    if let Some(path) = &args.plot {
+        check_picture_path("--plot", path)?;
     }
     let scores = args.out.join("scores.json");
     let roi = args.roi.preset();

@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use bevworld_graph::{Override, RunOptions, StopHandle};
 
+use crate::commands::Refused;
 use crate::registry;
 
 /// Validates, builds and runs `graph` with `set` (`node.key=value`), to the end.
@@ -19,11 +20,13 @@ pub fn run_graph(
 ) -> Result<(ResolvedParams, bevworld_graph::RunReport)> {
     let overrides = set
         .iter()
-        .map(|text| Override::parse(text).map_err(anyhow::Error::from))
+        .map(|text| {
+            Override::parse(text).map_err(|e| crate::commands::refuse(format!("--set {e}")))
+        })
         .collect::<Result<Vec<_>>>()?;
     let validated = match bevworld_graph::load(graph, &registry::registry(), &overrides) {
         Ok(validated) => validated,
-        Err(diagnostics) => bail!("{diagnostics}"),
+        Err(diagnostics) => return Err(Refused::Graph(diagnostics).into()),
     };
     let params: ResolvedParams = validated
         .spec
@@ -33,7 +36,7 @@ pub fn run_graph(
         .collect();
     let built = match validated.build() {
         Ok(built) => built,
-        Err(diagnostics) => bail!("{diagnostics}"),
+        Err(diagnostics) => return Err(Refused::Graph(diagnostics).into()),
     };
     let outcome = bevworld_graph::run(
         built,

@@ -10,6 +10,8 @@ use bevworld_sensors::synth::{Branch, ImageEncoding, SynthConfig, generate};
 use bevworld_types::Manoeuvre;
 use clap::Args;
 
+use crate::commands::refuse;
+
 #[derive(Args)]
 pub struct SynthArgs {
     /// Output folder (created; must not already hold a dataset).
@@ -21,19 +23,19 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Scene length in seconds (12 Hz sensor ticks, keyframes at 2 Hz).
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 4.0)]
     pub seconds: f64,
     /// Camera image size WxH.
     #[arg(long, default_value = "400x224")]
     pub camera_size: String,
     /// LiDAR azimuth resolution in degrees.
-    #[arg(long, default_value_t = 0.4)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.4)]
     pub azimuth_step: f64,
     /// LiDAR range noise standard deviation, m.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     pub range_noise: f64,
     /// Probability that a LiDAR return is dropped.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     pub ray_drop: f64,
     /// Moving vehicles per scene (at most 200).
     #[arg(long, default_value_t = 14)]
@@ -45,8 +47,9 @@ pub struct SynthArgs {
     #[arg(long)]
     pub overwrite: bool,
     /// Branch every scene at this time (seconds): instead of the scene, one scene per
-    /// manoeuvre, named `<scene>-<manoeuvre>`, identical up to here.
-    #[arg(long)]
+    /// manoeuvre, named `<scene>-<manoeuvre>`, identical up to here. The scene must have a
+    /// keyframe after it.
+    #[arg(long, allow_negative_numbers = true)]
     pub branch_at: Option<f64>,
     /// The manoeuvres of `--branch-at`: keep, left, right, faster, slower, stop.
     #[arg(
@@ -61,10 +64,16 @@ pub struct SynthArgs {
 pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     let (camera_width, camera_height) = parse_size(&args.camera_size).context("--camera-size")?;
     if !(args.azimuth_step > 0.01 && args.azimuth_step <= 10.0) {
-        bail!("--azimuth-step must be in (0.01, 10] degrees");
+        return Err(refuse(format!(
+            "--azimuth-step {}: must be in (0.01, 10] degrees",
+            args.azimuth_step
+        )));
     }
-    if !(0.0..=1.0).contains(&args.ray_drop) || args.range_noise < 0.0 {
-        bail!("--ray-drop must be in [0, 1] and --range-noise >= 0");
+    if !(0.0..=1.0).contains(&args.ray_drop) || !(args.range_noise >= 0.0) {
+        return Err(refuse(format!(
+            "--ray-drop {} must be in [0, 1] and --range-noise {} >= 0",
+            args.ray_drop, args.range_noise
+        )));
     }
     // Never into another dataset: its samples/ and sweeps/ would be mixed with ours, and
     // --overwrite would replace files that are not ours to replace.
@@ -127,10 +136,10 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     // anything is written.
     let problems = config.problems();
     if !problems.is_empty() {
-        bail!(
+        return Err(refuse(format!(
             "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --jpeg, --branch-at, --maneuvers)",
             problems.join("; ")
-        );
+        )));
     }
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
