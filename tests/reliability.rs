@@ -5,10 +5,10 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 
-use common::{bevworld, bevworld_owned, node, read_json, repo, text};
+use common::{bevworld, bevworld_owned, files_under, node, read_json, repo, text};
 
 fn path(p: &Path) -> String {
     p.display().to_string()
@@ -51,24 +51,6 @@ fn forecast_args(data: &Path, out: &Path, set: &[String]) -> Vec<String> {
         args.push(s.clone());
     }
     args
-}
-
-/// Every file under `dir`, relative to it.
-fn files_under(dir: &Path) -> Vec<PathBuf> {
-    let mut found = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(folder) = stack.pop() {
-        for entry in std::fs::read_dir(&folder).expect("read_dir").flatten() {
-            let p = entry.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                found.push(p.strip_prefix(dir).expect("inside").to_path_buf());
-            }
-        }
-    }
-    found.sort();
-    found
 }
 
 /// Rows 1, 7, 13 and 15: a scene named to escape the output folder, rerun with other

@@ -81,3 +81,21 @@ pub fn reconstruct_outputs(out: &Path) -> Vec<String> {
     args.push(format!("metrics.csv={}", out.join("metrics.csv").display()));
     args
 }
+
+/// Every file under `dir`, relative to it, sorted.
+pub fn files_under(dir: &Path) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(folder) = stack.pop() {
+        for entry in std::fs::read_dir(&folder).expect("read_dir").flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                found.push(path.strip_prefix(dir).expect("inside").to_path_buf());
+            }
+        }
+    }
+    found.sort();
+    found
+}

@@ -90,16 +90,9 @@ impl PointCloud {
     }
 
     fn ego_points_of<'a>(&self, points: impl Iterator<Item = &'a LidarPoint>) -> Vec<[f32; 3]> {
-        let ego_from_lidar = self.ego_from_lidar;
-        points
-            .map(|p| {
-                let q = ego_from_lidar.transform_point3(glam::DVec3::new(
-                    f64::from(p.x),
-                    f64::from(p.y),
-                    f64::from(p.z),
-                ));
-                [q.x as f32, q.y as f32, q.z as f32]
-            })
+        self.ego_returns_of(points)
+            .into_iter()
+            .map(|p| [p.x, p.y, p.z])
             .collect()
     }
 }
