@@ -243,6 +243,12 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Device { size } => {
             let (kind, device) = bevworld_device::from_env()?;
             println!("backend: {} ({device:?})", kind.name());
+            println!(
+                "cpu: {}; vector instructions: {}; host kernels dispatch to {}",
+                bevworld_device::cpu_model(),
+                bevworld_device::simd_features().join(" "),
+                bevworld_blocks::host::dispatch_level()
+            );
             let rate = bevworld_device::matmul_gflops(&device, size, 5)?;
             println!("matmul {size}x{size}: {rate:.1} GFLOP/s");
             Ok(ExitCode::SUCCESS)

@@ -51,6 +51,24 @@ pub fn vectorized<K: macerator::WithSimd>(kernel: K) -> K::Output {
     macerator::AutoArch::new().dispatch(kernel)
 }
 
+/// The vector instructions `vectorized` dispatches to on this CPU, by name: `avx512-fp16`,
+/// `avx512` (x86-64-v4), `avx2+fma` (v3), `sse4.2` (v2), `neon`, or `scalar`. A kernel that
+/// runs scalar on a CPU with wide vectors is several times slower; a test holds this level to
+/// what the CPU reports.
+pub fn dispatch_level() -> &'static str {
+    let arch = macerator::Arch::detect();
+    let name = format!("{arch:?}");
+    match name.as_str() {
+        "V4FP16" => "avx512-fp16",
+        "V4" => "avx512",
+        "V3" => "avx2+fma",
+        "V2" => "sse4.2",
+        "Scalar" => "scalar",
+        _ if name.to_ascii_lowercase().contains("neon") => "neon",
+        _ => "other",
+    }
+}
+
 /// `values[i] = f(values[i])` for every value, as one vectorised loop: `f` must be an
 /// `#[inline(always)]` function (a function item, not a pointer, so that the call is static)
 /// of branch-free arithmetic (`fast_math`).

@@ -89,3 +89,36 @@ fn log_sigmoid_is_stable_and_accurate_over_the_logits_a_renderer_sees() {
     assert_eq!(log_sigmoid(f32::NEG_INFINITY), f32::NEG_INFINITY);
     assert!(log_sigmoid(f32::NAN).is_nan());
 }
+
+/// The host kernels dispatch to the widest instructions the CPU reports, so that a build or a
+/// library update that falls back to scalar code on a vector CPU is noticed here, not in a
+/// benchmark.
+#[test]
+fn host_kernels_dispatch_to_the_widest_instructions_the_cpu_has() {
+    let level = bevworld_blocks::host::dispatch_level();
+    #[cfg(target_arch = "x86_64")]
+    {
+        // x86-64-v4: the AVX-512 subsets every AVX-512 server CPU has.
+        let v4 = std::is_x86_feature_detected!("avx512f")
+            && std::is_x86_feature_detected!("avx512bw")
+            && std::is_x86_feature_detected!("avx512cd")
+            && std::is_x86_feature_detected!("avx512dq")
+            && std::is_x86_feature_detected!("avx512vl");
+        let v3 = std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+        let expected: &[&str] = if v4 {
+            &["avx512", "avx512-fp16"]
+        } else if v3 {
+            &["avx2+fma"]
+        } else if std::is_x86_feature_detected!("sse4.2") {
+            &["sse4.2"]
+        } else {
+            &["scalar"]
+        };
+        assert!(
+            expected.contains(&level),
+            "the CPU offers {expected:?}, the host kernels dispatch to {level}"
+        );
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    assert_ne!(level, "other", "an unnamed dispatch level");
+}

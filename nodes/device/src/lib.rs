@@ -7,8 +7,10 @@
 // Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
+mod cpu;
 mod host_memory;
 
+pub use cpu::{cpu_model, simd_features};
 pub use host_memory::{keep_freed_memory, purge_delay_ms};
 
 use std::time::Instant;
