@@ -357,6 +357,7 @@ def main():
         "build": f"{torch.get_num_interop_threads()} inter-op threads, MKL-DNN "
                  f"{'on' if torch.backends.mkldnn.is_available() else 'off'}",
         "allocator": os.environ.get("BEVWORLD_TORCH_ALLOCATOR", "glibc malloc, defaults"),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "agreement": agreement,
         "eager": {},
     }

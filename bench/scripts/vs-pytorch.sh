@@ -7,7 +7,8 @@
 #    on 1 and 2 threads;
 # 2. the reference: checks its outputs against ours, then times eager PyTorch on 1 and 2 threads
 #    and torch.compile on 2 (compiling takes about a minute the first time);
-# then the page, each figure the median of the rounds.
+# then this machine's figures (bench/results/vs-pytorch-<kind>.json, each the median of the
+# rounds) and the page, one section per kind of machine measured.
 # PyTorch is optional: set BEVWORLD_PYTHON to a Python with torch, numpy and safetensors, or let
 # this script use $HOME/.cache/bevworld/torch-venv, made once with
 #   python3 -m venv ~/.cache/bevworld/torch-venv &&
@@ -22,6 +23,8 @@ PYTHON="${BEVWORLD_PYTHON:-$HOME/.cache/bevworld/torch-venv/bin/python}"
 ROUNDS="${ROUNDS:-3}"
 rm -f "$DIR"/ours*.json "$DIR"/torch*.json
 cargo build --release -p bevworld-bench --bin vs_pytorch
+# The CPU, its vector instructions and the kernels they select: the page names them per machine.
+cargo run --release --bin bevworld -- device --size 512
 HAVE_TORCH=0
 if [ -x "$PYTHON" ] && "$PYTHON" -c "import torch, numpy, safetensors" 2>/dev/null; then
     HAVE_TORCH=1

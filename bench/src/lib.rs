@@ -24,15 +24,60 @@ pub fn machine() -> String {
     let cores = std::thread::available_parallelism()
         .map(|n| n.get())
         .unwrap_or(1);
-    let model = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|text| {
-            text.lines()
-                .find(|l| l.starts_with("model name"))
-                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
-        })
-        .unwrap_or_else(|| "unknown CPU".into());
-    format!("{cores} cores, {model}")
+    format!(
+        "{cores} cores, {} ({}; host kernels: {})",
+        bevworld_device::cpu_model(),
+        bevworld_device::simd_features().join(" "),
+        bevworld_blocks::host::dispatch_level()
+    )
+}
+
+/// The machine a benchmark ran on, as a record: cores, CPU model, the vector instruction sets
+/// detected, and the kernels they select (our host kernels' dispatch level; gemm, under
+/// burn's `x86-v4`, runs AVX-512 micro-kernels wherever `avx512f` is detected).
+pub fn machine_record() -> serde_json::Value {
+    let simd = bevworld_device::simd_features();
+    serde_json::json!({
+        "cores": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+        "cpu": bevworld_device::cpu_model(),
+        "simd": simd,
+        "host_kernels": bevworld_blocks::host::dispatch_level(),
+        "matmul_kernels": if simd.contains(&"avx512f") { "gemm avx512 (x86-v4)" } else if simd.contains(&"avx2") { "gemm avx2+fma" } else { "gemm baseline" },
+    })
+}
+
+/// A short name for a kind of machine, for the file of its figures: `intel-xeon-avx512`,
+/// `amd-epyc-avx2`. Machines of one kind run the same kernels.
+pub fn machine_kind(record: &serde_json::Value) -> String {
+    let cpu = record["cpu"]
+        .as_str()
+        .unwrap_or("unknown")
+        .to_ascii_lowercase();
+    let family = if cpu.contains("epyc") {
+        "amd-epyc".to_string()
+    } else if cpu.contains("xeon") {
+        "intel-xeon".to_string()
+    } else {
+        cpu.split(|c: char| !c.is_ascii_alphanumeric())
+            .filter(|w| !w.is_empty() && !matches!(*w, "r" | "tm" | "processor" | "cpu"))
+            .take(3)
+            .collect::<Vec<_>>()
+            .join("-")
+    };
+    let simd: Vec<&str> = record["simd"]
+        .as_array()
+        .map(|a| a.iter().filter_map(serde_json::Value::as_str).collect())
+        .unwrap_or_default();
+    let widest = if simd.contains(&"avx512f") {
+        "avx512"
+    } else if simd.contains(&"avx2") {
+        "avx2"
+    } else if simd.is_empty() {
+        "unrecorded"
+    } else {
+        "sse"
+    };
+    format!("{family}-{widest}")
 }
 
 /// Nearest-rank percentile, the one the forecast metrics report.
