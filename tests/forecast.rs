@@ -106,6 +106,27 @@ fn eval_forecast_scores_every_context_and_writes_every_file_it_promises() {
         for method in ["copy_last", "ego_warp"] {
             assert!(row[method]["chamfer"].as_f64().expect("raw baseline") > 0.0);
         }
+        // The agents: the synthetic world annotates its vehicles, so every method and both
+        // raw baselines get the three classes' scores, over the same true points.
+        let points = |method: &str, class: &str| {
+            row[method]["agents"][class]["points"]
+                .as_u64()
+                .unwrap_or_else(|| panic!("{method} {class}: {row}"))
+        };
+        for class in ["moving_vehicles", "parked_vehicles", "static"] {
+            let truth = points("model", class);
+            assert!(truth > 0, "{class}: {row}");
+            for method in ["latent_ego_warp", "oracle", "copy_last", "ego_warp"] {
+                assert_eq!(points(method, class), truth, "{method} {class}");
+            }
+            for method in ["model", "oracle", "ego_warp"] {
+                let recall = row[method]["agents"][class]["recall_1m"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN);
+                assert!((0.0..=1.0).contains(&recall), "{method} {class}: {row}");
+            }
+        }
+        assert!(points("model", "static") > 10 * points("model", "moving_vehicles"));
     }
     assert!(dir.path().join("chamfer.png").is_file());
 

@@ -26,7 +26,17 @@ for tau in 0.15 0.25 0.4; do
         --set "rollout.shrink={tau: $tau, fade_s: 3.0}" --set "views.methods=[model]"
 done
 $BIN eval forecast --data out/synth-wm-test --out out/eval-forecast-test \
-    --plot bench/results/forecast-chamfer.png --json > out/eval-forecast-test.json
+    --plot bench/results/forecast-chamfer.png --json > bench/results/forecast-test.json
+# The README's demo scene (made by its main command), with the agents' split.
+if [ ! -d out/synth-forecast ]; then
+    $BIN run configs/graphs/forecast.yaml --no-progress
+fi
+$BIN eval forecast --data out/synth-forecast --out out/eval-forecast-demo \
+    --json > bench/results/forecast-demo.json
+# The tables the page quotes, generated from those files.
+for split in test demo; do
+    cargo run --release -p bevworld-bench --bin forecast_tables -- "bench/results/forecast-$split.json"
+done
 for split in val:9850:4 test:9800:8; do
     IFS=: read -r name seed scenes <<<"$split"
     if [ ! -d "out/synth-control-$name" ]; then

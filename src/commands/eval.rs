@@ -617,6 +617,10 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
             table["ms_per_forecast"].as_f64().unwrap_or(f64::NAN),
             bevworld_metrics::forecast_node::markdown_of(&table)
         );
+        let agents = bevworld_metrics::forecast_node::agents_markdown_of(&table);
+        if !agents.is_empty() {
+            println!("The agents, from the dataset's boxes (means over scenes):\n\n{agents}");
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

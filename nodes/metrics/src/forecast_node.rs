@@ -11,12 +11,18 @@
 //! - `copy_last`, `ego_warp`: the raw-point baselines on the same frames, as `eval baselines`
 //!   computes them: the context sweep as it is, and moved by the known ego motion.
 //!
+//! - `agents`: when the logged frame carries the dataset's boxes, the agent-level scores of
+//!   `agents.rs` (points on moving vehicles, on parked vehicles, the static rest), for every
+//!   method and both raw baselines, pooled over contexts and per scene.
+//!
 //! Views without a logged future are counted and left out. With `json`, the table is written
 //! in the shape `bevworld eval forecast --json` prints.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::path::PathBuf;
 use std::sync::Arc;
+
+use crate::agents::{AgentSums, SplitTruth, split_truth};
 
 use bevworld_graph::{
     Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
@@ -64,6 +70,9 @@ struct Cell {
     latent_l1: Sum,
     /// The Chamfer distance per scene, for its spread over scenes.
     chamfer_by_scene: BTreeMap<String, Sum>,
+    /// The agent-level sums, pooled and per scene.
+    agents: AgentSums,
+    agents_by_scene: BTreeMap<String, AgentSums>,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -83,6 +92,14 @@ impl Sum {
 }
 
 impl Cell {
+    fn add_agents(&mut self, scene: &str, sums: &AgentSums) {
+        self.agents.add(sums);
+        self.agents_by_scene
+            .entry(scene.to_string())
+            .or_default()
+            .add(sums);
+    }
+
     fn add_chamfer(&mut self, scene: &str, value: f64) {
         self.chamfer.add(value);
         self.chamfer_by_scene
@@ -110,7 +127,13 @@ pub struct ForecastMetrics {
     latency_ms: BTreeMap<String, (f64, f64)>,
     without_truth: u64,
     empty_clouds: u64,
+    /// The last logged frames split by their boxes, by frame token: every method of a
+    /// horizon is scored against the same split.
+    splits: VecDeque<(String, Arc<SplitTruth>)>,
 }
+
+/// How many split truths are kept: the methods of a context's horizons arrive together.
+const SPLITS_KEPT: usize = 32;
 
 fn points_moved(frame: &SensorFrame, to_from_ego: &bevworld_types::Pose) -> Vec<[f64; 3]> {
     frame
@@ -132,6 +155,23 @@ impl ForecastMetrics {
             .or_default()
             .entry(method.to_string())
             .or_default()
+    }
+
+    /// The logged frame split by its boxes; `None` when the dataset annotates nothing there.
+    fn split(&mut self, truth: &SensorFrame) -> Option<Arc<SplitTruth>> {
+        if truth.boxes.is_empty() {
+            return None;
+        }
+        if let Some((_, split)) = self.splits.iter().find(|(t, _)| *t == truth.frame_token) {
+            return Some(Arc::clone(split));
+        }
+        let split = Arc::new(split_truth(truth, &self.roi));
+        self.splits
+            .push_back((truth.frame_token.clone(), Arc::clone(&split)));
+        if self.splits.len() > SPLITS_KEPT {
+            self.splits.pop_front();
+        }
+        Some(split)
     }
 
     fn chamfer(&mut self, pred: &[[f64; 3]], truth: &[[f64; 3]]) -> Option<f64> {
@@ -181,6 +221,9 @@ impl ForecastMetrics {
                         scores.insert("chamfer_scene_std".into(), spread.into());
                         scores.insert("scenes".into(), per_scene.len().into());
                     }
+                    if let Some(agents) = agents_json(cell) {
+                        scores.insert("agents".into(), agents);
+                    }
                     row.insert(method.clone(), scores.into());
                 }
                 row.into()
@@ -204,6 +247,126 @@ impl ForecastMetrics {
             "horizons": horizons,
         })
     }
+}
+
+/// A cell's agent-level scores: per class the pooled recall, one-sided Chamfer and point
+/// count, with the spread over scenes of each scene's pooled value; for the moving vehicles
+/// the precision in their boxes and the displacement. `None` when no view was annotated.
+fn agents_json(cell: &Cell) -> Option<serde_json::Value> {
+    use bevworld_types::PointClass;
+    let pooled = &cell.agents;
+    if pooled.classes.iter().all(|c| c.points == 0) {
+        return None;
+    }
+    let mut agents = serde_json::Map::new();
+    for class in PointClass::ALL {
+        let sums = pooled.class(class);
+        if sums.points == 0 {
+            continue;
+        }
+        // Each scene's pooled value, then their mean and population spread: "mean ± spread
+        // over scenes", as the whole-scene Chamfer reports it.
+        let over_scenes = |value: &dyn Fn(&crate::agents::ClassSums) -> Option<f64>| {
+            let per_scene: Vec<f64> = cell
+                .agents_by_scene
+                .values()
+                .filter_map(|s| value(s.class(class)))
+                .collect();
+            let mean = (!per_scene.is_empty())
+                .then(|| per_scene.iter().sum::<f64>() / per_scene.len() as f64);
+            serde_json::json!({
+                "mean": mean,
+                "std": crate::report_file::population_std(&per_scene),
+            })
+        };
+        agents.insert(
+            class.name().into(),
+            serde_json::json!({
+                "points": sums.points,
+                "recall_0.5m": sums.recall_near(),
+                "recall_1m": sums.recall_far(),
+                "recall_0.5m_above_ground": sums.recall_near_above_ground(),
+                "chamfer_to_forecast": sums.chamfer_to_forecast(),
+                "over_scenes": {
+                    "scenes": cell.agents_by_scene.len(),
+                    "recall_0.5m": over_scenes(&|s| s.recall_near()),
+                    "recall_1m": over_scenes(&|s| s.recall_far()),
+                    "recall_0.5m_above_ground": over_scenes(&|s| s.recall_near_above_ground()),
+                    "chamfer_to_forecast": over_scenes(&|s| s.chamfer_to_forecast()),
+                },
+            }),
+        );
+    }
+    agents.insert(
+        "moving_boxes".into(),
+        serde_json::json!({
+            "forecast_points": pooled.in_moving_boxes,
+            "precision_0.5m": pooled.precision_in_moving_boxes(),
+        }),
+    );
+    agents.insert(
+        "moving_agents".into(),
+        serde_json::json!({
+            "agents": pooled.moving_agents,
+            "missed": pooled.moving_agents_missed(),
+            "displacement_m": pooled.displacement_m(),
+        }),
+    );
+    Some(agents.into())
+}
+
+/// The agent-level part of a forecast table as markdown: per class, the mean over scenes of
+/// each scene's value (± the spread for the headline ones); the moving boxes' precision and
+/// the displacement pooled over all views. Empty when nothing was annotated.
+pub fn agents_markdown_of(table: &serde_json::Value) -> String {
+    let mut text = String::new();
+    let empty = Vec::new();
+    for row in table["horizons"].as_array().unwrap_or(&empty) {
+        let horizon = row["horizon_s"].as_f64().unwrap_or(f64::NAN);
+        for method in TABLE_METHODS {
+            let Some(agents) = row.get(method).and_then(|c| c.get("agents")) else {
+                continue;
+            };
+            let value = |path: &[&str]| {
+                path.iter()
+                    .try_fold(agents, |v, key| v.get(*key))
+                    .and_then(serde_json::Value::as_f64)
+            };
+            let show = |path: &[&str], digits: usize| {
+                value(path).map_or("—".to_string(), |v| format!("{v:.digits$}"))
+            };
+            let scenes = |class: &str, metric: &str, digits: usize, spread: bool| {
+                let mean = show(&[class, "over_scenes", metric, "mean"], digits);
+                if spread {
+                    format!(
+                        "{mean} ± {}",
+                        show(&[class, "over_scenes", metric, "std"], digits)
+                    )
+                } else {
+                    mean
+                }
+            };
+            text.push_str(&format!(
+                "| +{horizon} s | {method} | {} | {} | {} | {} | {} | {} ({}) | {} / {} | {} |\n",
+                scenes("moving_vehicles", "recall_0.5m", 2, false),
+                scenes("moving_vehicles", "recall_1m", 2, true),
+                scenes("moving_vehicles", "recall_0.5m_above_ground", 2, false),
+                scenes("moving_vehicles", "chamfer_to_forecast", 2, true),
+                show(&["moving_boxes", "precision_0.5m"], 2),
+                show(&["moving_agents", "displacement_m"], 2),
+                show(&["moving_agents", "missed"], 2),
+                scenes("parked_vehicles", "recall_0.5m", 2, false),
+                scenes("parked_vehicles", "recall_1m", 2, false),
+                scenes("static", "chamfer_to_forecast", 3, true),
+            ));
+        }
+    }
+    if text.is_empty() {
+        return text;
+    }
+    format!(
+        "| horizon | method | moving: recall@0.5 m | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) | moving: precision in their boxes | moving: displacement m (share missed) | parked: recall@0.5 / @1 m | static: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|---|---|---|\n{text}"
+    )
 }
 
 /// The nearest-rank percentile `q` of `values` (NaN when there are none).
@@ -288,6 +451,13 @@ impl Sink for ForecastMetrics {
                 self.cell(horizon_s, ahead, "ego_warp")
                     .add_chamfer(&scene, c);
             }
+            if let Some(split) = self.split(&truth) {
+                for (method, points) in [("copy_last", &copy_last), ("ego_warp", &ego_warp)] {
+                    let sums = crate::agents::score(&split, points, &self.roi);
+                    self.cell(horizon_s, ahead, method)
+                        .add_agents(&scene, &sums);
+                }
+            }
         }
         let method = view.method.name();
         if let Some(lidar) = &rendered.lidar {
@@ -297,6 +467,12 @@ impl Sink for ForecastMetrics {
             } else {
                 self.cell(horizon_s, ahead, method)
                     .add_chamfer(&truth.scene_name, result.chamfer);
+            }
+            if let Some(split) = self.split(&truth) {
+                let forecast = crate::reconstruction_node::to_f64(lidar.ego_points());
+                let sums = crate::agents::score(&split, &forecast, &self.roi);
+                self.cell(horizon_s, ahead, method)
+                    .add_agents(&truth.scene_name, &sums);
             }
         }
         if let Some(images) = &rendered.images {
@@ -359,11 +535,16 @@ impl Sink for ForecastMetrics {
                 self.without_truth
             );
         } else if self.print {
+            let table = self.table();
             println!(
                 "\nForecast scores, mean over {} contexts:\n\n{}",
                 self.contexts.len(),
-                markdown_of(&self.table())
+                markdown_of(&table)
             );
+            let agents = agents_markdown_of(&table);
+            if !agents.is_empty() {
+                println!("\nThe agents, from the dataset's boxes (means over scenes):\n\n{agents}");
+            }
         }
         if let Some(path) = &self.json {
             let text = serde_json::to_string_pretty(&self.table())
@@ -424,6 +605,7 @@ fn build(params: &ForecastMetricsParams) -> Result<ForecastMetrics, ParamError> 
         latency_ms: BTreeMap::new(),
         without_truth: 0,
         empty_clouds: 0,
+        splits: VecDeque::new(),
     })
 }
 

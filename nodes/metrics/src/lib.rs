@@ -3,6 +3,7 @@
 // Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
+pub mod agents;
 pub mod chamfer;
 pub mod fid;
 pub mod forecast_node;

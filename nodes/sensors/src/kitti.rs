@@ -256,6 +256,8 @@ impl Kitti {
                 source_file: relative,
             }),
             action,
+            // KITTI odometry has no object annotations.
+            boxes: Vec::new(),
         })
     }
 }

@@ -463,3 +463,134 @@ fn a_branch_drives_its_manoeuvre_from_the_shared_state() {
         );
     }
 }
+
+/// The reader gives each keyframe its annotated boxes: vehicles with the category of their
+/// instance, and a velocity from their neighbours that agrees with the world's own motion.
+#[test]
+fn keyframes_carry_their_boxes_with_category_and_velocity() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = SynthConfig {
+        seconds: 3.0,
+        ..tiny(5)
+    };
+    generate(dir.path(), &config, |_, _| {}).unwrap();
+    let reader = NuScenes::open(
+        dir.path(),
+        NuScenesOptions {
+            sweeps: true,
+            skip_images: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let (_, annotations) =
+        read_table::<SampleAnnotation>(&dir.path().join(VERSION), "sample_annotation").unwrap();
+    let mut keyframes_with_boxes = 0;
+    let (mut moving, mut standing) = (0, 0);
+    for index in 0..reader.len() {
+        let frame = reader.read(index).unwrap();
+        let annotated: Vec<&SampleAnnotation> = annotations
+            .iter()
+            .filter(|a| a.sample_token == frame.sample_token)
+            .collect();
+        // Sweeps share their keyframe's sample token but carry no boxes of their own.
+        let keyframe = frame.index_in_scene.is_multiple_of(6);
+        if !keyframe {
+            assert!(frame.boxes.is_empty(), "sweep {index}");
+            continue;
+        }
+        assert_eq!(frame.boxes.len(), annotated.len(), "keyframe {index}");
+        keyframes_with_boxes += usize::from(!frame.boxes.is_empty());
+        for (object, annotation) in frame.boxes.iter().zip(&annotated) {
+            assert_eq!(object.category, "vehicle.car");
+            assert_eq!(object.instance_token, annotation.instance_token);
+            let written_moving = annotation.attribute_tokens == ["vehicle.moving"];
+            // An agent annotated at one keyframe only has no velocity; every other one's speed
+            // says whether the world drove it.
+            if object.velocity.is_some() {
+                assert_eq!(
+                    object.is_moving(),
+                    written_moving,
+                    "{} at {:.2} m/s",
+                    object.instance_token,
+                    object.speed_mps()
+                );
+                if object.is_moving() {
+                    moving += 1;
+                } else {
+                    standing += 1;
+                }
+            }
+        }
+    }
+    assert!(keyframes_with_boxes >= 5, "{keyframes_with_boxes}");
+    assert!(
+        moving > 0 && standing > 0,
+        "{moving} moving, {standing} standing"
+    );
+}
+
+/// Annotations whose tokens dangle, or whose box is impossible, are refused naming the table,
+/// the record and the field.
+#[test]
+fn broken_annotations_are_refused_naming_table_record_and_field() {
+    let edit = |table: &str, field: &str, value: serde_json::Value| {
+        let dir = tempfile::tempdir().unwrap();
+        generate(dir.path(), &tiny(6), |_, _| {}).unwrap();
+        let path = dir.path().join(VERSION).join(format!("{table}.json"));
+        let mut rows: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        rows[0][field] = value;
+        std::fs::write(&path, serde_json::to_vec(&rows).unwrap()).unwrap();
+        NuScenes::open(dir.path(), NuScenesOptions::default())
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default()
+    };
+    for (table, field, value, says) in [
+        (
+            "sample_annotation",
+            "instance_token",
+            serde_json::json!("nobody"),
+            "dangling token 'nobody'",
+        ),
+        (
+            "sample_annotation",
+            "sample_token",
+            serde_json::json!("never"),
+            "dangling token 'never'",
+        ),
+        (
+            "sample_annotation",
+            "next",
+            serde_json::json!("gone"),
+            "dangling token 'gone'",
+        ),
+        (
+            "sample_annotation",
+            "size",
+            serde_json::json!([0.0, 4.0, 1.5]),
+            "width, length and height > 0",
+        ),
+        (
+            "sample_annotation",
+            "rotation",
+            serde_json::json!([0.0, 0.0, 0.0, 0.0]),
+            "rotation",
+        ),
+        (
+            "instance",
+            "category_token",
+            serde_json::json!("nothing"),
+            "dangling token 'nothing'",
+        ),
+    ] {
+        let message = edit(table, field, value);
+        assert!(
+            message.contains(&format!("{table}.json"))
+                && message.contains(field)
+                && message.contains(says),
+            "{table}.{field}: {message}"
+        );
+    }
+}

@@ -58,6 +58,7 @@ fn frame(scene: &str, token: &str, index: usize, intensity: f32) -> Arc<SensorFr
         cameras: Vec::new(),
         lidar: Arc::new(cloud(intensity)),
         action: None,
+        boxes: Vec::new(),
     })
 }
 

@@ -181,5 +181,7 @@ pub fn virtual_frame(
         cameras,
         lidar: Arc::new(cloud),
         action: None,
+        // A predicted pose has no annotation: what would have been there is not known.
+        boxes: Vec::new(),
     }
 }

@@ -4,6 +4,7 @@ use std::sync::Arc;
 
 use crate::action::EgoAction;
 use crate::camera::{CameraChannel, CameraImage, ImageSet, NamedImage};
+use crate::object_box::ObjectBox;
 use crate::point_cloud::PointCloud;
 use crate::pose::Pose;
 
@@ -26,6 +27,9 @@ pub struct SensorFrame {
     pub lidar: Arc<PointCloud>,
     /// The ego's motion from this frame to the next one in its scene, if there is one.
     pub action: Option<EgoAction>,
+    /// The objects the dataset annotates at this frame, in the global frame: the keyframes of
+    /// an annotated dataset (nuScenes, the synthetic world); empty otherwise.
+    pub boxes: Vec<ObjectBox>,
 }
 
 impl SensorFrame {

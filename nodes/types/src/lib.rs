@@ -19,6 +19,7 @@ pub mod frame;
 pub mod latent_stats;
 pub mod latent_stats_file;
 pub mod manoeuvre;
+pub mod object_box;
 pub mod pillars;
 pub mod point_cloud;
 pub mod pose;
@@ -39,6 +40,7 @@ pub use latent_stats::{
 };
 pub use latent_stats_file::{LatentStatsFile, StatsFileError, stats_path_for};
 pub use manoeuvre::Manoeuvre;
+pub use object_box::{MOVING_SPEED_MPS, ObjectBox, PointClass, classify_point};
 pub use pillars::{GridError, PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 pub use point_cloud::{LidarPoint, PointCloud};
 pub use pose::{Pose, pose_from_translation_quaternion};

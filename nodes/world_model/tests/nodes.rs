@@ -614,6 +614,7 @@ fn frame(scene: &str, time_s: f64) -> Arc<SensorFrame> {
             source_file: String::new(),
         }),
         action: None,
+        boxes: Vec::new(),
     })
 }
 

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use bevworld_types::{
-    CameraChannel, CameraImage, EgoAction, Intrinsics, PointCloud, Pose, SensorFrame,
+    CameraChannel, CameraImage, EgoAction, Intrinsics, ObjectBox, PointCloud, Pose, SensorFrame,
     pose_from_translation_quaternion,
 };
 use rayon::prelude::*;
@@ -51,6 +51,8 @@ struct FrameRef {
     lidar: Reading,
     cameras: Vec<(CameraChannel, Reading)>,
     action: Option<EgoAction>,
+    /// The keyframe's annotated objects (none for a sweep between keyframes).
+    boxes: Vec<ObjectBox>,
 }
 
 /// The bytes of one frame's files, read ahead of decoding.
@@ -96,6 +98,7 @@ impl NuScenes {
         let (calib_path, calibrated) = read_table::<CalibratedSensor>(&dir, "calibrated_sensor")?;
         let (sensor_path, sensors) = read_table::<Sensor>(&dir, "sensor")?;
         let (pose_path, poses) = read_table::<EgoPose>(&dir, "ego_pose")?;
+        let mut boxes = super::annotations::boxes_by_sample(&dir, &samples)?;
 
         let sensor_by_token: HashMap<&str, &Sensor> =
             sensors.iter().map(|s| (s.token.as_str(), s)).collect();
@@ -322,6 +325,11 @@ impl NuScenes {
                     lidar: lidar.clone(),
                     cameras,
                     action: None,
+                    boxes: if lidar_record.is_key_frame {
+                        boxes.remove(&lidar_record.sample_token).unwrap_or_default()
+                    } else {
+                        Vec::new()
+                    },
                 });
             }
             // Actions between consecutive frames of the scene.
@@ -453,6 +461,7 @@ impl NuScenes {
             cameras,
             lidar: Arc::new(cloud),
             action: frame.action,
+            boxes: frame.boxes.clone(),
         })
     }
 

@@ -103,6 +103,20 @@ pub struct SampleAnnotation {
     pub num_radar_pts: i64,
 }
 
+/// An object across keyframes: its category.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+pub struct Instance {
+    pub token: String,
+    pub category_token: String,
+}
+
+/// A category of objects, e.g. `vehicle.car`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+pub struct Category {
+    pub token: String,
+    pub name: String,
+}
+
 /// Reads one table, naming the file in every error.
 pub fn read_table<T: DeserializeOwned>(
     dir: &Path,
