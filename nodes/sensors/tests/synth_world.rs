@@ -504,7 +504,10 @@ fn keyframes_carry_their_boxes_with_category_and_velocity() {
         for (object, annotation) in frame.boxes.iter().zip(&annotated) {
             assert_eq!(object.category, "vehicle.car");
             assert_eq!(object.instance_token, annotation.instance_token);
-            let written_moving = annotation.attribute_tokens == ["vehicle.moving"];
+            let written_moving = annotation.attribute_tokens
+                == [bevworld_sensors::synth::schema::attribute_token(
+                    "vehicle.moving",
+                )];
             // An agent annotated at one keyframe only has no velocity; every other one's speed
             // says whether the world drove it.
             if object.velocity.is_some() {
@@ -593,4 +596,216 @@ fn broken_annotations_are_refused_naming_table_record_and_field() {
             "{table}.{field}: {message}"
         );
     }
+}
+
+/// Every token the tables reference resolves, as the nuScenes devkit's reverse index needs
+/// (it loads these tables and fails on the first that does not), the map names every log and
+/// its mask is where it says, and each box's `num_lidar_pts` is what the devkit's
+/// `points_in_box` finds in it.
+#[test]
+fn the_tables_hold_together_as_the_nuscenes_schema_requires() {
+    use serde_json::Value;
+    use std::collections::HashSet;
+    let dir = tempfile::tempdir().unwrap();
+    let config = SynthConfig {
+        scenes: 2,
+        seconds: 1.5,
+        ..tiny(8)
+    };
+    generate(dir.path(), &config, |_, _| {}).unwrap();
+    let tables = dir.path().join(VERSION);
+    let table = |name: &str| -> Vec<Value> {
+        serde_json::from_slice(&std::fs::read(tables.join(format!("{name}.json"))).unwrap())
+            .unwrap()
+    };
+    let tokens = |name: &str| -> HashSet<String> {
+        table(name)
+            .iter()
+            .map(|r| r["token"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let resolves = |rows: &[Value], field: &str, into: &HashSet<String>, may_be_empty: bool| {
+        for row in rows {
+            let value = row[field]
+                .as_str()
+                .unwrap_or_else(|| panic!("{field} in {row}"));
+            assert!(
+                (may_be_empty && value.is_empty()) || into.contains(value),
+                "{field} '{value}' does not resolve"
+            );
+        }
+    };
+    let annotations = table("sample_annotation");
+    assert!(!annotations.is_empty());
+    let (samples, instances) = (tokens("sample"), tokens("instance"));
+    let (categories, attributes) = (tokens("category"), tokens("attribute"));
+    let (visibility, annotation_tokens) = (tokens("visibility"), tokens("sample_annotation"));
+    resolves(&annotations, "sample_token", &samples, false);
+    resolves(&annotations, "instance_token", &instances, false);
+    resolves(&annotations, "visibility_token", &visibility, false);
+    resolves(&annotations, "prev", &annotation_tokens, true);
+    resolves(&annotations, "next", &annotation_tokens, true);
+    for row in &annotations {
+        let attribute = row["attribute_tokens"].as_array().unwrap();
+        assert_eq!(attribute.len(), 1);
+        assert!(attributes.contains(attribute[0].as_str().unwrap()));
+    }
+    let instance_rows = table("instance");
+    resolves(&instance_rows, "category_token", &categories, false);
+    resolves(
+        &instance_rows,
+        "first_annotation_token",
+        &annotation_tokens,
+        false,
+    );
+    resolves(
+        &instance_rows,
+        "last_annotation_token",
+        &annotation_tokens,
+        false,
+    );
+    // The devkit's names: categories, attributes and the four visibility levels.
+    let names = |name: &str| -> HashSet<String> {
+        table(name)
+            .iter()
+            .map(|r| r["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert!(names("category").contains("vehicle.car"));
+    assert!(names("category").contains("human.pedestrian.adult"));
+    assert!(names("attribute").contains("vehicle.parked"));
+    assert_eq!(
+        visibility,
+        ["1", "2", "3", "4"].iter().map(|s| s.to_string()).collect()
+    );
+    // The map names every log, and its mask is a PNG at 0.1 m per pixel.
+    let maps = table("map");
+    assert_eq!(maps.len(), 1);
+    let logged: HashSet<String> = maps[0]["log_tokens"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(logged, tokens("log"));
+    let mask = image::open(dir.path().join(maps[0]["filename"].as_str().unwrap()))
+        .unwrap()
+        .into_luma8();
+    assert_eq!(
+        (mask.width(), mask.height()),
+        (5100, 5100),
+        "510 m at 0.1 m"
+    );
+    // The road along x at y = 0 (pixel row height − 1) is drivable; a block's centre is not.
+    assert_eq!(mask.get_pixel(1000, mask.height() - 1).0, [255]);
+    assert_eq!(mask.get_pixel(300, mask.height() - 301).0, [0]);
+    // num_lidar_pts, counted as the devkit counts (corner projections, bounds included).
+    let dataset = NuScenes::open(
+        dir.path(),
+        NuScenesOptions {
+            skip_images: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut compared = 0;
+    for index in 0..dataset.len() {
+        let frame = dataset.read(index).unwrap();
+        let global_from_lidar = frame.lidar.global_from_ego * frame.lidar.ego_from_lidar;
+        let points: Vec<DVec3> = frame
+            .lidar
+            .points
+            .iter()
+            .map(|p| {
+                global_from_lidar.transform_point3(DVec3::new(p.x.into(), p.y.into(), p.z.into()))
+            })
+            .collect();
+        for row in annotations
+            .iter()
+            .filter(|a| a["sample_token"] == frame.sample_token.as_str())
+        {
+            let translation: Vec<f64> = row["translation"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let size: Vec<f64> = row["size"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let q: Vec<f64> = row["rotation"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let rotation = glam::DQuat::from_xyzw(q[1], q[2], q[3], q[0]);
+            let centre = DVec3::new(translation[0], translation[1], translation[2]);
+            // The devkit: corners 0 (front-left-top), 1, 3 and 4 span the box; a point is in
+            // when its projections on the three edges lie within them.
+            let corner = |x: f64, y: f64, z: f64| {
+                centre
+                    + rotation * DVec3::new(x * size[1] / 2.0, y * size[0] / 2.0, z * size[2] / 2.0)
+            };
+            let (p1, p2, p4, p5) = (
+                corner(1.0, 1.0, 1.0),
+                corner(1.0, -1.0, 1.0),
+                corner(-1.0, 1.0, 1.0),
+                corner(1.0, 1.0, -1.0),
+            );
+            let (i, j, k) = (p2 - p1, p4 - p1, p5 - p1);
+            let inside = points
+                .iter()
+                .filter(|p| {
+                    let v = **p - p1;
+                    let within = |axis: DVec3| {
+                        let d = v.dot(axis);
+                        0.0 <= d && d <= axis.dot(axis)
+                    };
+                    within(i) && within(j) && within(k)
+                })
+                .count() as i64;
+            assert_eq!(inside, row["num_lidar_pts"].as_i64().unwrap(), "{row}");
+            compared += 1;
+        }
+    }
+    assert!(compared > 10, "{compared}");
+}
+
+/// A vehicle the rig sees whole is graded v80-100; one behind a wall, v0-40.
+#[test]
+fn visibility_grades_what_the_rig_sees_of_a_vehicle() {
+    use bevworld_sensors::synth::geometry::Shape;
+    use bevworld_sensors::synth::render::Snapshot;
+    use bevworld_sensors::synth::schema::{visibility_token, visible_share};
+    use bevworld_sensors::synth::world::{Material, RoadSpec, Solid, VehicleBody};
+    let car = VehicleBody {
+        center: DVec2::new(20.0, 0.0),
+        yaw: 0.0,
+        size: DVec3::new(1.9, 4.5, 1.6),
+        colour: [200, 30, 30],
+    };
+    let eye = DVec3::new(0.0, 0.0, 1.8);
+    let open = Snapshot::new(RoadSpec::default(), car.solids(7).to_vec());
+    assert!(visible_share(&open, eye, &car, 7) > 0.95);
+    assert_eq!(visibility_token(&open, eye, &car, 7), "4");
+    let wall = Solid {
+        shape: Shape::Box {
+            center: DVec2::new(10.0, 0.0),
+            half: DVec2::new(0.2, 5.0),
+            yaw: 0.0,
+            z_min: 0.0,
+            z_max: 4.0,
+        },
+        material: Material::Kerb,
+        instance: 0,
+    };
+    let mut solids = car.solids(7).to_vec();
+    solids.push(wall);
+    let hidden = Snapshot::new(RoadSpec::default(), solids);
+    assert!(visible_share(&hidden, eye, &car, 7) < 0.05);
+    assert_eq!(visibility_token(&hidden, eye, &car, 7), "1");
 }

@@ -11,6 +11,7 @@ pub mod render;
 pub mod rig;
 pub mod rng;
 pub mod scene;
+pub mod schema;
 pub mod set;
 pub mod traffic;
 pub mod world;

@@ -49,6 +49,20 @@ impl RoadSpec {
         (dx, dy)
     }
 
+    /// Whether `p` is on the drivable surface: inside the town and off every kerbed block
+    /// (the blocks are rounded squares between the road centre lines, `City::generate`).
+    pub fn is_drivable(&self, p: DVec2) -> bool {
+        let (lo, hi) = self.extent();
+        if p.x < lo.x || p.y < lo.y || p.x > hi.x || p.y > hi.y {
+            return false;
+        }
+        let block = self.pitch - 2.0 * self.half_width;
+        let cell = (p / self.pitch).floor();
+        let center = cell * self.pitch + DVec2::splat(self.pitch * 0.5);
+        super::geometry::rounded_rect_sdf(p, center, DVec2::splat(block * 0.5), self.corner_radius)
+            > 0.0
+    }
+
     pub fn extent(&self) -> (DVec2, DVec2) {
         let margin = self.pitch * 0.5;
         (

@@ -223,6 +223,32 @@ fn rotation_wxyz(pose: &Pose) -> [f64; 4] {
     [q.w, q.x, q.y, q.z]
 }
 
+/// How much an annotated box is grown on every side beyond the body it annotates, m.
+pub const BOX_PAD_M: f64 = 0.02;
+
+/// The sweep's points inside a box, counted as the devkit's `points_in_box` counts them: in the
+/// box's own frame, within its half extents, bounds included.
+fn points_in_box(
+    points: &[bevworld_types::LidarPoint],
+    global_from_lidar: &Pose,
+    global_from_box: &Pose,
+    size: [f64; 3],
+) -> i64 {
+    let box_from_lidar = global_from_box.inverse() * *global_from_lidar;
+    let [width, length, height] = size;
+    points
+        .iter()
+        .filter(|p| {
+            let q = box_from_lidar.transform_point3(glam::DVec3::new(
+                f64::from(p.x),
+                f64::from(p.y),
+                f64::from(p.z),
+            ));
+            q.x.abs() <= 0.5 * length && q.y.abs() <= 0.5 * width && q.z.abs() <= 0.5 * height
+        })
+        .count() as i64
+}
+
 /// The token key of a branch of the scene made from `seed`: its own, so that no table row of
 /// one branch is mistaken for another's.
 fn branch_key(seed: u64, manoeuvre: Manoeuvre) -> u64 {
@@ -286,7 +312,7 @@ pub fn generate(
         ..Default::default()
     };
     let mut annotation_chain: BTreeMap<String, Vec<usize>> = BTreeMap::new();
-    let category = token(0, "category", 0);
+    let category = super::schema::category_token("vehicle.car");
 
     for (seed, branch) in config.scene_variants() {
         // A branch shares the world, the traffic, the LiDAR noise and the drive up to the
@@ -431,7 +457,7 @@ pub fn generate(
             let global_from_lidar = global_from_ego * ego_from_lidar();
             let snapshot = world.snapshot(lidar_time);
             let noise_seed = seed.wrapping_mul(1_000_003).wrapping_add(tick as u64);
-            let (points, ids) =
+            let (points, _ids) =
                 scan_lidar(&snapshot, &config.lidar, &global_from_lidar, noise_seed);
             summary.lidar_points += points.len();
             let file = format!("{folder}/LIDAR_TOP/{name}__LIDAR_TOP__{lidar_time}.pcd.bin");
@@ -463,7 +489,27 @@ pub fn generate(
                     }
                     let instance_token = token(key, "instance", u64::from(instance));
                     let index = tables.sample_annotation.len();
-                    let num_lidar_pts = ids.iter().filter(|&&id| id == instance).count() as i64;
+                    // The box is the body's, grown by `BOX_PAD_M` on every side: the returns
+                    // lie on the body's faces, and a box drawn exactly through them holds only
+                    // the ones rounding puts inside. Its count is what the devkit's
+                    // `points_in_box` finds in it.
+                    let size = [
+                        body.size.x + 2.0 * BOX_PAD_M,
+                        body.size.y + 2.0 * BOX_PAD_M,
+                        body.size.z + 2.0 * BOX_PAD_M,
+                    ];
+                    let global_from_box = Pose::from_rotation_translation(
+                        DQuat::from_rotation_z(body.yaw),
+                        glam::DVec3::new(body.center.x, body.center.y, body.size.z * 0.5),
+                    );
+                    let num_lidar_pts =
+                        points_in_box(&points, &global_from_lidar, &global_from_box, size);
+                    let visibility = super::schema::visibility_token(
+                        &snapshot,
+                        global_from_lidar.translation,
+                        &body,
+                        instance,
+                    );
                     tables.sample_annotation.push(SampleAnnotation {
                         token: token(
                             key,
@@ -472,14 +518,14 @@ pub fn generate(
                         ),
                         sample_token: sample_tokens[tick / KEYFRAME_EVERY].clone(),
                         instance_token: instance_token.clone(),
-                        visibility_token: String::new(),
-                        attribute_tokens: vec![if moving {
-                            "vehicle.moving".into()
+                        visibility_token: visibility.into(),
+                        attribute_tokens: vec![super::schema::attribute_token(if moving {
+                            "vehicle.moving"
                         } else {
-                            "vehicle.parked".into()
-                        }],
+                            "vehicle.parked"
+                        })],
                         translation: [body.center.x, body.center.y, body.size.z * 0.5],
-                        size: [body.size.x, body.size.y, body.size.z],
+                        size,
                         rotation: {
                             let q = DQuat::from_rotation_z(body.yaw);
                             [q.w, q.x, q.y, q.z]
@@ -531,16 +577,15 @@ pub fn generate(
     write_table("sample_annotation", &tables.sample_annotation)?;
     write_table("instance", &tables.instance)?;
     write_table("ego_control", &tables.ego_control)?;
-    write_table(
-        "category",
-        &vec![
-            json!({"token": category, "name": "vehicle.car", "description": "Synthetic passenger car."}),
-        ],
-    )?;
-    let empty: Vec<serde_json::Value> = Vec::new();
-    for name in ["attribute", "visibility", "map"] {
-        write_table(name, &empty)?;
-    }
+    write_table("category", &super::schema::category_table())?;
+    write_table("attribute", &super::schema::attribute_table())?;
+    write_table("visibility", &super::schema::visibility_table())?;
+    let log_tokens: Vec<String> = tables.log.iter().map(|l| l.token.clone()).collect();
+    let (map, map_file) = super::schema::map_table(&log_tokens);
+    write_table("map", &map)?;
+    let mask = super::schema::drivable_area_png(&super::world::RoadSpec::default())
+        .map_err(|e| SensorError::Other(format!("the map mask: {e}")))?;
+    write_file(&out.join(map_file), &mask)?;
     summary.seconds = started.elapsed().as_secs_f64();
     Ok(summary)
 }
