@@ -1,6 +1,6 @@
 //! The `bevworld` tool as a user runs it: exit codes, error messages and written files.
 
-mod common;
+use crate::common;
 
 use common::{bevworld, node, text};
 

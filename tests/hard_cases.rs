@@ -7,7 +7,7 @@
 //! Each crate's own hard cases are in its `tests/hard_cases.rs` (the world model's sampler,
 //! actions and backends; the tokenizer's rendering extremes; the latent statistics).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -4,7 +4,7 @@
 //! The graphs run the shipped weights on tiny random scenes, so these tests check plumbing and
 //! invariants; quality is checked in `nodes/tokenizer/tests/shipped_weights.rs`.
 
-mod common;
+use crate::common;
 
 use common::{bevworld, bevworld_owned, node, reconstruct_outputs, text};
 

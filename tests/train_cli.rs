@@ -2,7 +2,7 @@
 //! curves and weights; the weights drive the reconstruction graph; a second run into the same
 //! folder must say `--resume`, and `--resume` continues where the checkpoint left off.
 
-mod common;
+use crate::common;
 
 use common::{bevworld, bevworld_owned, reconstruct_outputs, text};
 

@@ -1,7 +1,7 @@
 //! Our vectorised GELU against burn's (libm's `erf`) and its hard cases: large magnitudes,
 //! zero, infinities and NaN. Training (autodiff) must keep burn's op and its gradient.
 
-mod reference;
+use crate::reference;
 use reference::{erf_f64, sweep};
 
 use bevworld_blocks::activation::{gelu, gelu_in_place};

@@ -3,7 +3,7 @@
 
 use bevworld_blocks::fast_math::{erf, exp, log_sigmoid, log1p};
 
-mod reference;
+use crate::reference;
 use reference::{erf_f64, sweep};
 
 #[test]

@@ -1,6 +1,6 @@
 //! FLOP counts against hand arithmetic.
 
-mod common;
+use crate::common;
 
 use common::model_config as config;
 

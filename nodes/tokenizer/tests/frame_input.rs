@@ -2,7 +2,7 @@
 //! the render rays with the encoder's projection, LiDAR rays that rebuild the sweep, and clear
 //! errors for frames and pillars that do not fit the model.
 
-mod common;
+use crate::common;
 
 use common::{nuscenes_frame, tiny};
 

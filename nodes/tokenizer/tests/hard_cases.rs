@@ -8,7 +8,7 @@
 //!   (`frame_input.rs::an_empty_sweep_still_encodes`, beside the frame's other inputs), and NaN,
 //!   infinite and huge sample points sample zero (`render.rs`).
 
-mod common;
+use crate::common;
 use common::weights_of;
 
 use bevworld_tokenizer::encoder::projection::{FusionCamera, project_points};

@@ -1,7 +1,7 @@
 //! The `encode` and `render` nodes refuse inputs that do not belong together, with errors that
 //! say what to connect or configure, and never panic.
 
-mod common;
+use crate::common;
 
 use common::nuscenes_frame;
 

@@ -1,7 +1,7 @@
 //! Rays on the real nuScenes keyframe: every camera ray projects back onto its pixel centre
 //! through the frame's own calibration, and LiDAR rays rebuild the real points from their ranges.
 
-mod common;
+use crate::common;
 
 use common::nuscenes_frame;
 

@@ -2,7 +2,7 @@
 //! border, and against finite differences (sample points are data, so gradients flow to the
 //! voxels). The numerical extremes are in `hard_cases.rs`.
 
-mod common;
+use crate::common;
 use common::weights_of;
 
 use bevworld_tokenizer::render::{

@@ -2,11 +2,12 @@
 //! `configs/models/tokenizer-tiny.yaml`) reproduces the reconstruction stored in
 //! `tests/fixtures/` of a fixed input: the first keyframe of the held-out synthetic scene 9000.
 //!
-//! After retraining, `BEVWORLD_BLESS=1 cargo test --release --workspace --test shipped_weights`
+//! After retraining,
+//! `BEVWORLD_BLESS=1 cargo test --release -p bevworld-tokenizer --test tokenizer shipped_weights`
 //! rewrites the stored reconstruction (and says so); without it, any drift beyond the
 //! tolerances below fails.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 //! "occupied" features (α ≈ 1). Rays that hit the box must stop at its face; the skipping
 //! renderer must agree with the dense one while evaluating far fewer samples.
 
-mod common;
+use crate::common;
 
 use common::tiny;
 

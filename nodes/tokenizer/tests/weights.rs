@@ -1,6 +1,6 @@
 //! Weights round-trip exactly; a missing file or another config's weights are clear errors.
 
-mod common;
+use crate::common;
 
 use common::tiny;
 

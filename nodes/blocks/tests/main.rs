@@ -1,0 +1,12 @@
+//! The integration tests of `bevworld-blocks`.
+//!
+//! One binary, one module per file and concern: a binary per file linked burn into each, some
+//! 500 MB apiece, for the same tests.
+
+mod activation;
+mod blocks;
+mod fast_math;
+mod host_attention;
+mod reference;
+mod softmax;
+mod swin;
