@@ -274,21 +274,6 @@ pub fn wait<T>(handle: JoinHandle<T>) -> std::io::Result<T> {
         .map_err(|join| std::io::Error::other(format!("I/O task failed: {join}")))
 }
 
-/// Reads a whole file on the I/O pool, for prefetching the next item while this one computes.
-pub fn read_ahead(path: PathBuf) -> std::io::Result<JoinHandle<std::io::Result<Vec<u8>>>> {
-    let runtime = runtime()?;
-    Ok(runtime.spawn(async move { tokio::fs::read(&path).await }))
-}
-
-/// Waits for a prefetch started with `read_ahead`.
-pub fn wait_read(handle: JoinHandle<std::io::Result<Vec<u8>>>) -> std::io::Result<Vec<u8>> {
-    let runtime = runtime()?;
-    match runtime.block_on(handle) {
-        Ok(result) => result,
-        Err(join) => Err(std::io::Error::other(format!("read task failed: {join}"))),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -177,14 +177,6 @@ impl WorldModelConfig {
         }
     }
 
-    /// Metres per latent cell along x and y.
-    pub fn cell_size(&self) -> [f64; 2] {
-        [
-            (self.x_range[1] - self.x_range[0]) / self.latent_size[1].max(1) as f64,
-            (self.y_range[1] - self.y_range[0]) / self.latent_size[0].max(1) as f64,
-        ]
-    }
-
     /// Every inconsistency, one line each, naming the field.
     pub fn problems(&self) -> Vec<ConfigProblem> {
         let mut problems = Vec::new();

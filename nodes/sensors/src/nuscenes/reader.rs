@@ -417,16 +417,6 @@ impl NuScenes {
         })
     }
 
-    /// The files that `fetch` reads for a frame, relative to the root.
-    pub fn files_of(&self, index: usize) -> Result<Vec<PathBuf>> {
-        let frame = self.frame_ref(index)?;
-        let mut files = vec![self.root.join(&frame.lidar.file)];
-        if !self.options.skip_images {
-            files.extend(frame.cameras.iter().map(|(_, r)| self.root.join(&r.file)));
-        }
-        Ok(files)
-    }
-
     /// Decodes fetched files into a frame; the six JPEG decodes run in parallel.
     pub fn decode(&self, files: FrameFiles) -> Result<SensorFrame> {
         let frame = self.frame_ref(files.index)?;

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use bevworld_types::{Intrinsics, LidarPoint, Pose};
 
-use super::geometry::{Ray, Shape};
+use super::geometry::Ray;
 use super::rng::Rng;
 use super::world::{Material, RoadSpec, Solid, asphalt_albedo, solid_albedo};
 
@@ -189,13 +189,6 @@ impl Snapshot {
 
     pub fn solids(&self) -> &[Solid] {
         &self.solids
-    }
-
-    pub fn shapes_of(&self, instance: u32) -> impl Iterator<Item = &Shape> {
-        self.solids
-            .iter()
-            .filter(move |s| s.instance == instance)
-            .map(|s| &s.shape)
     }
 }
 

@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::DQuat;
 use serde_json::json;
 
-use bevworld_types::{CameraChannel, Manoeuvre, Pose};
+use bevworld_types::{Manoeuvre, Pose};
 
 use super::render::{LidarSpec, render_camera, scan_lidar};
 use super::rig::{CAMERAS, LIDAR_ROTATION, LIDAR_TRANSLATION, ego_from_lidar};
@@ -674,11 +674,6 @@ fn encode_image(
             Ok((bytes, "jpg"))
         }
     }
-}
-
-/// The camera channel order the writer uses (for tests).
-pub fn camera_channels() -> Vec<CameraChannel> {
-    CAMERAS.iter().map(|c| c.channel).collect()
 }
 
 /// Where a dataset root's table folder is.
