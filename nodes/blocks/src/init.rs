@@ -13,6 +13,7 @@
 use std::cell::Cell;
 use std::sync::Mutex;
 
+use bevworld_types::SplitMix64;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 
@@ -55,21 +56,12 @@ pub fn seeded_init<M: Module>(seed: u64, device: &Device, build: impl FnOnce(&De
     module
 }
 
-/// SplitMix64, the host generator behind `random_tensor`.
-fn split_mix(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
 /// Values for a tensor of `shape`, drawn on the host from `seed`: uniform in `[low, high)`, or
 /// (with `normal`) Gaussian of mean `low` and standard deviation `high` by Box–Muller. For test
 /// inputs and noise, so that no draw touches burn's process-wide generator.
 pub fn random_values(seed: u64, count: usize, low: f64, high: f64, normal: bool) -> Vec<f32> {
-    let mut state = seed;
-    let mut unit = || (split_mix(&mut state) >> 11) as f64 / (1u64 << 53) as f64;
+    let mut rng = SplitMix64::new(seed);
+    let mut unit = || rng.unit();
     (0..count)
         .map(|_| {
             if normal {

@@ -1,7 +1,8 @@
 //! Training machinery that knows no model: the learning-rate schedule and AdamW settings,
 //! global-norm clipping, the moving average of the weights, atomic checkpoints that resume
-//! bit for bit, the run's generator, data-parallel replicas with gradients summed in a fixed
-//! order, the metrics log, its curves, and the loop that ties them together.
+//! bit for bit (with the run's generator, `bevworld_types::SplitMix64`), data-parallel
+//! replicas with gradients summed in a fixed order, the metrics log, its curves, and the loop
+//! that ties them together.
 //!
 //! A model's trainer implements `Trainee` (one step, validation, a checkpoint) and keeps only
 //! what is its own: its data, its losses and its scores.
@@ -16,7 +17,6 @@ pub mod ema;
 pub mod metrics_log;
 pub mod optimizer;
 pub mod parallel;
-pub mod rng;
 pub mod run;
 pub mod schedule;
 
@@ -28,5 +28,4 @@ pub use curves::{Curve, plot_curves};
 pub use metrics_log::{MetricsLog, Row};
 pub use optimizer::OptimizerConfig;
 pub use parallel::{WorkerPanicked, parallel_map, replica, sum_in_order};
-pub use rng::SplitMix64;
 pub use run::{LoopPlan, Observer, Scores, StepReport, Trainee, Validation, run_loop};

@@ -6,7 +6,7 @@ use bevworld_blocks::seeded_init;
 use bevworld_training::ema::{effective_decay, update};
 use bevworld_training::metrics_log::{MetricsLog, Row, read_series};
 use bevworld_training::schedule::learning_rate;
-use bevworld_training::{Curve, SplitMix64, WorkerPanicked, parallel_map, plot_curves};
+use bevworld_training::{Curve, WorkerPanicked, parallel_map, plot_curves};
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 
@@ -33,47 +33,6 @@ fn the_schedule_warms_up_then_follows_the_cosine() {
     assert!((learning_rate(1e-3, 10, 110, 0.1, 10) - 1e-3).abs() < 1e-12);
     assert!((learning_rate(1e-3, 10, 110, 0.1, 60) - 0.55e-3).abs() < 1e-12);
     assert!((learning_rate(1e-3, 10, 110, 0.1, 110) - 1e-4).abs() < 1e-12);
-}
-
-#[test]
-fn draws_are_distinct_and_reproducible() {
-    let mut a = SplitMix64::new(5);
-    let picks = a.choose(10, 4);
-    let mut sorted = picks.clone();
-    sorted.sort_unstable();
-    sorted.dedup();
-    assert_eq!(sorted.len(), 4);
-    assert!(picks.iter().all(|&i| i < 10));
-    assert_eq!(SplitMix64::new(5).choose(10, 4), picks);
-    assert_eq!(a.choose(3, 10).len(), 3);
-}
-
-#[test]
-fn weighted_draws_follow_the_weights_and_are_distinct() {
-    // One index of three with weights 1 : 3 : 0, many times: about 1/4 and 3/4, never the third.
-    let mut rng = SplitMix64::new(11);
-    let mut counts = [0usize; 3];
-    for _ in 0..8000 {
-        counts[rng.choose_weighted(&[1.0, 3.0, 0.0], 1)[0]] += 1;
-    }
-    assert_eq!(counts[2], 0);
-    let share = counts[1] as f64 / 8000.0;
-    assert!(
-        (share - 0.75).abs() < 0.02,
-        "share of the weight-3 index: {share}"
-    );
-    // Several at once are distinct; asking for all gives all, the weight-0 index last.
-    let weights: Vec<f32> = (0..50).map(|i| (i % 7) as f32).collect();
-    let picks = SplitMix64::new(3).choose_weighted(&weights, 20);
-    let mut sorted = picks.clone();
-    sorted.sort_unstable();
-    sorted.dedup();
-    assert_eq!(sorted.len(), 20);
-    assert!(picks.iter().all(|&i| weights[i] > 0.0));
-    assert_eq!(SplitMix64::new(3).choose_weighted(&weights, 20), picks);
-    let all = SplitMix64::new(3).choose_weighted(&[2.0, 0.0, 1.0], 10);
-    assert_eq!(all.len(), 3);
-    assert_eq!(all[2], 1);
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! The domain types every node shares: frames, calibration, poses, point clouds, ego actions,
-//! the latent's statistics (the contract between the tokenizer and the world model), and the
-//! typed config problem every config check reports.
+//! the latent's statistics (the contract between the tokenizer and the world model), the
+//! typed config problem every config check reports, and the one seeded generator
+//! (`splitmix.rs`).
 //!
 //! Transforms are named `a_from_b`: they map coordinates in frame `b` to frame `a`, so products
 //! read right to left: `global_from_lidar = global_from_ego * ego_from_lidar`. Global poses are
@@ -24,6 +25,7 @@ pub mod pillars;
 pub mod point_cloud;
 pub mod pose;
 pub mod problem;
+pub mod splitmix;
 
 pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
@@ -45,3 +47,4 @@ pub use pillars::{GridError, PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 pub use point_cloud::{LidarPoint, PointCloud};
 pub use pose::{Pose, pose_from_translation_quaternion};
 pub use problem::ConfigProblem;
+pub use splitmix::SplitMix64;

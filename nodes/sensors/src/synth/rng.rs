@@ -1,15 +1,20 @@
 //! Deterministic randomness: a seeded SplitMix64 stream for layout decisions, and stateless
 //! hash noise for textures (so a pixel's colour never depends on render order or threads).
+//! The generator is the workspace's one (`bevworld_types::SplitMix64`); the draws built on it
+//! here are the world's own, and fixed: a seed's bytes depend on them.
+
+use bevworld_types::SplitMix64;
+use bevworld_types::splitmix::{GOLDEN_GAMMA, mix};
 
 #[derive(Clone, Debug)]
 pub struct Rng {
-    state: u64,
+    stream: SplitMix64,
 }
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
         Self {
-            state: seed ^ 0x9E37_79B9_7F4A_7C15,
+            stream: SplitMix64::new(seed ^ GOLDEN_GAMMA),
         }
     }
 
@@ -19,20 +24,20 @@ impl Rng {
     }
 
     pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        mix(self.state)
+        self.stream.next_u64()
     }
 
     /// Uniform in [0, 1).
     pub fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+        self.stream.unit()
     }
 
     pub fn range(&mut self, low: f64, high: f64) -> f64 {
         low + (high - low) * self.unit()
     }
 
-    /// Uniform integer in [0, n).
+    /// An integer in [0, n), by modulo: favours low values by at most n / 2⁶⁴, nothing for the
+    /// small `n` a layout draws, and kept because every seed's world was drawn with it.
     pub fn below(&mut self, n: u64) -> u64 {
         if n == 0 { 0 } else { self.next_u64() % n }
     }
@@ -49,16 +54,9 @@ impl Rng {
     }
 }
 
-/// SplitMix64's finaliser: a strong 64-bit mix.
-pub fn mix(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 /// Hash of an integer lattice point to [0, 1).
 pub fn hash2(x: i64, y: i64, salt: u64) -> f64 {
-    let h = mix((x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+    let h = mix((x as u64).wrapping_mul(GOLDEN_GAMMA)
         ^ mix((y as u64) ^ salt.wrapping_mul(0xD6E8_FEB8_6659_FD93)));
     (h >> 11) as f64 / (1u64 << 53) as f64
 }

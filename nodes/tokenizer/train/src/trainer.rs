@@ -21,9 +21,10 @@ use bevworld_training::checkpoint::{self, CheckpointError, CheckpointState};
 use bevworld_training::ema::{self, MismatchedModules};
 use bevworld_training::metrics_log::MetricsLogError;
 use bevworld_training::{
-    Curve, SplitMix64, Trainee, Validation, WorkerPanicked, clip_global_norm, parallel_map,
-    replica, sum_in_order,
+    Curve, Trainee, Validation, WorkerPanicked, clip_global_norm, parallel_map, replica,
+    sum_in_order,
 };
+use bevworld_types::SplitMix64;
 use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
