@@ -66,6 +66,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "bevworld-world-model",
             "bevworld-sensors",
             "bevworld-sinks",
+            "bevworld-metrics",
         ],
     ),
     (

@@ -484,41 +484,18 @@ fn world_model(args: &WorldModelEvalArgs) -> Result<ExitCode> {
         );
         return Ok(ExitCode::SUCCESS);
     }
-    let horizons: Vec<String> = (1..=evaluation.mean.forecast.len())
-        .map(|k| format!("+{:.1} s", 0.5 * k as f64))
-        .collect();
     println!(
         "{} windows of {} scenes, DDIM {} steps; standardised latent L1, mean ± spread over scenes",
         evaluation.windows,
         evaluation.scenes.len(),
         sampler.steps
     );
-    println!("| method | {} |", horizons.join(" | "));
-    println!("|---|{}", "---|".repeat(horizons.len()));
-    for (name, mean, spread) in [
-        (
-            "world model",
-            &evaluation.mean.forecast,
-            &evaluation.spread.forecast,
-        ),
-        (
-            "ego-warp",
-            &evaluation.mean.ego_warp,
-            &evaluation.spread.ego_warp,
-        ),
-        (
-            "copy-last",
-            &evaluation.mean.copy_last,
-            &evaluation.spread.copy_last,
-        ),
-    ] {
-        let cells: Vec<String> = mean
-            .iter()
-            .zip(spread)
-            .map(|(m, s)| format!("{m:.4} ± {s:.4}"))
-            .collect();
-        println!("| {name} | {} |", cells.join(" | "));
-    }
+    println!(
+        "{}",
+        evaluation
+            .mean
+            .markdown(Some(&evaluation.spread), model_config.frame_interval_s)
+    );
     Ok(ExitCode::SUCCESS)
 }
 

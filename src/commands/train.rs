@@ -327,7 +327,7 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
     };
     // The flags are checked against the configs before the caches are exported, which takes
     // minutes on a fresh machine.
-    let (effective, _) = wm::effective_configs(&request)?;
+    let (effective, model) = wm::effective_configs(&request)?;
     // The branched cache only where a stage of this run reads it.
     let caches: Vec<_> = [&config.train, &config.val]
         .into_iter()
@@ -362,27 +362,8 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
         summary.log.display(),
         summary.curves.display()
     );
-    println!("{}", horizon_table(&summary.scores));
+    println!("{}", summary.scores.markdown(None, model.frame_interval_s));
     Ok(ExitCode::SUCCESS)
-}
-
-/// The standardised latent L1 per horizon of the forecast and the two baselines.
-fn horizon_table(scores: &bevworld_world_model_train::HorizonScores) -> String {
-    let row = |name: &str, values: &[f64]| {
-        let cells: Vec<String> = values.iter().map(|v| format!("{v:.4}")).collect();
-        format!("| {name} | {} |", cells.join(" | "))
-    };
-    let horizons: Vec<String> = (1..=scores.forecast.len())
-        .map(|k| format!("+{:.1} s", 0.5 * k as f64))
-        .collect();
-    [
-        format!("| latent L1 (standardised) | {} |", horizons.join(" | ")),
-        format!("|---|{}", "---|".repeat(horizons.len())),
-        row("world model", &scores.forecast),
-        row("ego-warp", &scores.ego_warp),
-        row("copy-last", &scores.copy_last),
-    ]
-    .join("\n")
 }
 
 /// A world-model run on the terminal: a bar of steps with the loss, a line per validation.

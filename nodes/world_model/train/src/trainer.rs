@@ -11,13 +11,15 @@ use std::path::Path;
 use bevworld_blocks::init::random_values;
 use bevworld_blocks::module_file::{ModuleFileError, load_module, save_module};
 use bevworld_blocks::seeded_init;
+use bevworld_metrics::report_file::population_std;
 use bevworld_training::checkpoint::{self, CheckpointError, CheckpointState};
 use bevworld_training::ema::{self, MismatchedModules};
 use bevworld_training::metrics_log::MetricsLogError;
 use bevworld_training::{
-    Curve, SplitMix64, StepReport, Trainee, Validation, WorkerPanicked, clip_global_norm,
-    parallel_map, replica, sum_in_order,
+    Curve, StepReport, Trainee, Validation, WorkerPanicked, clip_global_norm, parallel_map,
+    replica, sum_in_order,
 };
+use bevworld_types::SplitMix64;
 use bevworld_world_model::ddim::noisy_and_target;
 use bevworld_world_model::{
     ActionStats, DdimConfig, ForecastInputs, LatentGrid, NoiseSchedule, WorldModel,
@@ -560,16 +562,44 @@ impl HorizonScores {
         }
     }
 
-    /// The population standard deviation of each figure over `all`.
-    pub fn spread(all: &[Self]) -> Self {
-        let mean = Self::mean(all);
-        let n = all.len().max(1) as f64;
-        let deviation = |pick: &dyn Fn(&Self) -> &Vec<f64>| -> Vec<f64> {
-            pick(&mean)
+    /// The scores as a Markdown table, one column per future frame (`interval_s` apart), each
+    /// cell the mean or, with `spread`, mean ± spread: the one table that training and
+    /// evaluation print.
+    pub fn markdown(&self, spread: Option<&Self>, interval_s: f64) -> String {
+        let horizons: Vec<String> = (1..=self.forecast.len())
+            .map(|k| format!("+{:.1} s", interval_s * k as f64))
+            .collect();
+        let mut lines = vec![
+            format!("| latent L1 (standardised) | {} |", horizons.join(" | ")),
+            format!("|---|{}", "---|".repeat(horizons.len())),
+        ];
+        let spreads = |pick: fn(&Self) -> &Vec<f64>| spread.map(pick);
+        for (name, means, spreads) in [
+            ("world model", &self.forecast, spreads(|s| &s.forecast)),
+            ("ego-warp", &self.ego_warp, spreads(|s| &s.ego_warp)),
+            ("copy-last", &self.copy_last, spreads(|s| &s.copy_last)),
+        ] {
+            let cells: Vec<String> = means
                 .iter()
                 .enumerate()
-                .map(|(k, m)| {
-                    (all.iter().map(|s| (pick(s)[k] - m).powi(2)).sum::<f64>() / n).sqrt()
+                .map(|(k, m)| match spreads.and_then(|s| s.get(k)) {
+                    Some(s) => format!("{m:.4} ± {s:.4}"),
+                    None => format!("{m:.4}"),
+                })
+                .collect();
+            lines.push(format!("| {name} | {} |", cells.join(" | ")));
+        }
+        lines.join("\n")
+    }
+
+    /// The population standard deviation of each figure over `all` (0 for one).
+    pub fn spread(all: &[Self]) -> Self {
+        let deviation = |pick: &dyn Fn(&Self) -> &Vec<f64>| -> Vec<f64> {
+            let len = all.first().map_or(0, |s| pick(s).len());
+            (0..len)
+                .map(|k| {
+                    let values: Vec<f64> = all.iter().map(|s| pick(s)[k]).collect();
+                    population_std(&values).unwrap_or(0.0)
                 })
                 .collect()
         };
