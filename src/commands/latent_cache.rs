@@ -22,7 +22,7 @@ pub fn ensure(cache: &CacheConfig, tokenizer_model: &Path, tokenizer_weights: &P
         if cache.latents.join(index).is_file() {
             continue;
         }
-        println!(
+        eprintln!(
             "encoding {} ({}) into {}",
             cache.synth.dir.display(),
             if sweeps { "every sweep" } else { "keyframes" },
