@@ -3,7 +3,7 @@
 //! it, and `bevworld eval control` finds the shipped world model's `left` and `right`
 //! forecasts each closest to their own truth.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
@@ -71,7 +71,7 @@ fn branches_share_the_past_and_a_forecast_follows_its_own_manoeuvre() {
     assert!(output.status.success(), "{}", text(&output));
     let output = synth(
         &branched,
-        &["--branch-at", "1.5", "--maneuvers", "keep,left,right"],
+        &["--branch-at", "1.5", "--manoeuvres", "keep,left,right"],
     );
     assert!(output.status.success(), "{}", text(&output));
 
@@ -126,11 +126,11 @@ fn branches_share_the_past_and_a_forecast_follows_its_own_manoeuvre() {
     let result: serde_json::Value = serde_json::from_slice(&output.stdout).expect("json");
     assert_eq!(result["pairs"], 3, "{result}");
     let by_name = |name: &str| {
-        result["maneuvers"]
+        result["manoeuvres"]
             .as_array()
-            .expect("maneuvers")
+            .expect("manoeuvres")
             .iter()
-            .find(|m| m["maneuver"] == name)
+            .find(|m| m["manoeuvre"] == name)
             .cloned()
             .expect(name)
     };
@@ -146,17 +146,19 @@ fn branches_share_the_past_and_a_forecast_follows_its_own_manoeuvre() {
 #[test]
 fn branching_and_control_refuse_what_they_cannot_do() {
     let dir = tempfile::tempdir().expect("dir");
+    // The American spelling is the same flag: its values reach the same check.
     let output = synth(
         &dir.path().join("a"),
         &["--branch-at", "1", "--maneuvers", "keep,sideways"],
     );
     assert!(!output.status.success());
     assert!(
-        text(&output).contains("known: keep, left, right, faster, slower, stop"),
+        text(&output).contains("--manoeuvres: unknown manoeuvre 'sideways'")
+            && text(&output).contains("known: keep, left, right, faster, slower, stop"),
         "{}",
         text(&output)
     );
-    let output = synth(&dir.path().join("b"), &["--maneuvers", "left"]);
+    let output = synth(&dir.path().join("b"), &["--manoeuvres", "left"]);
     assert!(!output.status.success());
     assert!(text(&output).contains("--branch-at"), "{}", text(&output));
     let output = synth(&dir.path().join("c"), &["--branch-at", "5"]);
@@ -168,7 +170,7 @@ fn branching_and_control_refuse_what_they_cannot_do() {
     );
     let output = synth(
         &dir.path().join("d"),
-        &["--branch-at", "1", "--maneuvers", "left,left"],
+        &["--branch-at", "1", "--manoeuvres", "left,left"],
     );
     assert!(!output.status.success());
     assert!(

@@ -3,7 +3,7 @@
 //! through the binary. Cases a node or a parser meets on its own are tested beside it (the
 //! page names each test).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -296,7 +296,7 @@ fn a_branch_too_short_to_differ_is_refused() {
         "4",
         "--branch-at",
         "3.99",
-        "--maneuvers",
+        "--manoeuvres",
         "keep,stop",
     ]);
     assert_eq!(output.status.code(), Some(2), "{}", text(&output));

@@ -1,5 +1,5 @@
 //! `bevworld eval control`: does a forecast follow the action it was given? On a branched
-//! synthetic dataset (`bevworld synth --branch-at B --maneuvers …`), every group of branches
+//! synthetic dataset (`bevworld synth --branch-at B --manoeuvres …`), every group of branches
 //! shares its past and differs after B, so each manoeuvre has its own ground truth, which no
 //! real log has.
 //!
@@ -46,7 +46,7 @@ pub struct ControlEvalArgs {
     /// One context's forecasts, one per manoeuvre, side by side from above.
     #[arg(long)]
     pub picture: Option<PathBuf>,
-    /// Print one JSON object: {"accuracy", "pairs", "swap_ratio", "maneuvers": [...]}.
+    /// Print one JSON object: {"accuracy", "pairs", "swap_ratio", "manoeuvres": [...]}.
     #[arg(long)]
     pub json: bool,
 }
@@ -268,10 +268,10 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
     let (ratio_sum, ratio_count) = rows.values().fold((0.0, 0), |(s, n), r| (s + r.2, n + r.3));
     let accuracy = right as f64 / pairs.max(1) as f64;
     let swap_ratio = ratio_sum / ratio_count.max(1) as f64;
-    let maneuvers: Vec<serde_json::Value> = rows
+    let manoeuvres: Vec<serde_json::Value> = rows
         .iter()
         .map(|(m, r)| {
-            serde_json::json!({"maneuver": m.name(), "pairs": r.1, "accuracy": r.0 as f64 / r.1.max(1) as f64,
+            serde_json::json!({"manoeuvre": m.name(), "pairs": r.1, "accuracy": r.0 as f64 / r.1.max(1) as f64,
                 "swap_ratio": r.2 / r.3.max(1) as f64})
         })
         .collect();
@@ -281,7 +281,7 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
     if args.json {
         println!(
             "{}",
-            serde_json::json!({"accuracy": accuracy, "pairs": pairs, "swap_ratio": swap_ratio, "contexts": contexts, "horizon_s": args.horizon, "method": args.method, "maneuvers": maneuvers, "distances": matrices})
+            serde_json::json!({"accuracy": accuracy, "pairs": pairs, "swap_ratio": swap_ratio, "contexts": contexts, "horizon_s": args.horizon, "method": args.method, "manoeuvres": manoeuvres, "distances": matrices})
         );
     } else {
         println!("| manoeuvre | pairs | accuracy | swap ratio |\n|---|---|---|---|");

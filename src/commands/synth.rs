@@ -51,14 +51,16 @@ pub struct SynthArgs {
     /// keyframe after it.
     #[arg(long, allow_negative_numbers = true)]
     pub branch_at: Option<f64>,
-    /// The manoeuvres of `--branch-at`: keep, left, right, faster, slower, stop.
+    /// The manoeuvres of `--branch-at`: keep, left, right, faster, slower, stop
+    /// (`--maneuvers` is the same flag).
     #[arg(
         long,
+        alias = "maneuvers",
         value_delimiter = ',',
         default_value = "keep,left,right,faster,slower",
         requires = "branch_at"
     )]
-    pub maneuvers: Vec<String>,
+    pub manoeuvres: Vec<String>,
 }
 
 pub fn run(args: &SynthArgs) -> Result<ExitCode> {
@@ -118,12 +120,12 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
             Some(at_s) => Some(Branch {
                 at_s,
                 manoeuvres: args
-                    .maneuvers
+                    .manoeuvres
                     .iter()
                     .map(|name| {
                         Manoeuvre::parse(name).with_context(|| {
                             format!(
-                                "--maneuvers: unknown manoeuvre '{name}' (known: keep, left, right, faster, slower, stop)"
+                                "--manoeuvres: unknown manoeuvre '{name}' (known: keep, left, right, faster, slower, stop)"
                             )
                         })
                     })
@@ -137,7 +139,7 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     let problems = config.problems();
     if !problems.is_empty() {
         return Err(refuse(format!(
-            "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --jpeg, --branch-at, --maneuvers)",
+            "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --jpeg, --branch-at, --manoeuvres)",
             problems.join("; ")
         )));
     }
