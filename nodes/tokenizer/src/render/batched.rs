@@ -8,70 +8,10 @@ use crate::config::TokenizerConfig;
 use crate::frame_input::FrameRays;
 use crate::model::Tokenizer;
 use crate::render::field::VoxelField;
-use crate::render::march::{AlphaHead, March, Skipping};
+use crate::render::march::{AlphaHead, March};
+use crate::render::occupancy::Skipping;
 use crate::render::rays::{Rays, VoxelPlacement, sample_positions};
-
-/// What rendering a set of rays gives, on the host.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct RenderedRays {
-    /// Expected voxel feature per ray, `[R, C_v]` row-major.
-    pub features: Vec<f32>,
-    pub channels: usize,
-    /// Expected depth `Σ w_i t_i` per ray, metres.
-    pub depth: Vec<f32>,
-    /// `1 − T` per ray: how much of the ray the scene absorbed.
-    pub opacity: Vec<f32>,
-    /// Samples that went through trilinear sampling and the alpha head (the cost), against the
-    /// `rays × samples` a dense render evaluates.
-    pub samples_evaluated: u64,
-    pub samples_dense: u64,
-}
-
-impl RenderedRays {
-    /// `rays` rays of `channels` features, all zero, with nothing evaluated yet of the
-    /// `rays × samples` a dense render evaluates.
-    pub fn zeros(rays: usize, channels: usize, samples: usize) -> Self {
-        Self {
-            features: vec![0.0; rays * channels],
-            channels,
-            depth: vec![0.0; rays],
-            opacity: vec![0.0; rays],
-            samples_evaluated: 0,
-            samples_dense: (rays * samples) as u64,
-        }
-    }
-
-    pub fn rays(&self) -> usize {
-        self.depth.len()
-    }
-
-    /// Depths normalised by opacity: where a ray's mass lies, even for a half-transparent
-    /// ray. Rays with no opacity get `fallback`.
-    pub fn surface_depth(&self, fallback: f32) -> Vec<f32> {
-        self.depth
-            .iter()
-            .zip(&self.opacity)
-            .map(|(&d, &o)| if o > 1e-6 { d / o } else { fallback })
-            .collect()
-    }
-
-    /// The opacities as a tensor `[R]`.
-    pub fn opacity_tensor(&self, device: &Device) -> Tensor<1> {
-        Tensor::from_data(TensorData::new(self.opacity.clone(), [self.rays()]), device)
-    }
-
-    /// The features of rays `start .. start + count` as a tensor `[count, C_v]`.
-    pub fn features_tensor(&self, start: usize, count: usize, device: &Device) -> Tensor<2> {
-        let c = self.channels;
-        Tensor::from_data(
-            TensorData::new(
-                self.features[start * c..(start + count) * c].to_vec(),
-                [count, c],
-            ),
-            device,
-        )
-    }
-}
+use crate::render::rendered::{RenderedRays, host_vec};
 
 /// The camera images of rendered camera rays cast as `rays.camera` is: the background through
 /// each ray's transmittance, then the RGB upsampler.
@@ -90,11 +30,6 @@ pub fn camera_images(
         rays.rows,
         rays.columns,
     )
-}
-
-/// A tensor's values on the host, row-major.
-pub(crate) fn host_vec<const D: usize>(tensor: Tensor<D>) -> Vec<f32> {
-    tensor.into_data().try_to_vec::<f32>().unwrap_or_default()
 }
 
 /// A voxel field ready to render: the model whose alpha head reads it, the voxels, the fixed

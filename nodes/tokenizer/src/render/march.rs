@@ -19,10 +19,10 @@ use bevworld_blocks::fast_math::{exp, log_sigmoid_pair};
 use bevworld_blocks::host::vectorized;
 use rayon::prelude::*;
 
-use crate::render::batched::RenderedRays;
 use crate::render::field::FieldShape;
+use crate::render::occupancy::Skipping;
 use crate::render::rays::{Rays, VoxelPlacement};
-use crate::render::skipping::OccupancyGrid;
+use crate::render::rendered::RenderedRays;
 use crate::render::trilinear::sample_point;
 
 /// The alpha head's weights on the host: `s = w₂ · relu(W₁ f + b₁) + b₂`.
@@ -115,17 +115,6 @@ impl macerator::WithSimd for TableKernel<'_> {
             logits.copy_from_slice(&block[..logits.len()]);
         }
     }
-}
-
-/// What a march skips: nothing (dense), or samples in empty cells and samples after the ray's
-/// transmittance fell below `exp(stop_log_transmittance)`. The march evaluates a ray's kept
-/// samples `BLOCK` at a time and checks after each block; the tensor path checks after each of
-/// its `segment`-sample passes, so the two stop within a few samples of each other, and each
-/// drops at most `stop_transmittance` of the ray's weight.
-#[derive(Clone, Copy)]
-pub struct Skipping<'a> {
-    pub grid: &'a OccupancyGrid,
-    pub stop_log_transmittance: f32,
 }
 
 /// Samples evaluated together: one AVX-512 register of logits. Small enough that a stopped ray

@@ -19,97 +19,17 @@
 use burn::prelude::*;
 use burn::tensor::Bool;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
-use crate::render::batched::{RenderedRays, VoxelScene, host_vec};
-use crate::render::march::Skipping;
+use crate::render::batched::VoxelScene;
+use crate::render::occupancy::{OccupancyGrid, SkipOptions, Skipping};
 use crate::render::rays::{Rays, VoxelPlacement};
+use crate::render::rendered::{RenderedRays, host_vec};
 use crate::render::{log_transmittance_after, render_weights, sample_trilinear};
 
 /// The logit padding samples get: α = σ(−1e4) = 0 and log(1 − α) = 0, exactly, in f32.
 const PADDING_LOGIT: f32 = -1e4;
 
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SkipOptions {
-    /// A voxel with α at or below this is empty.
-    #[serde(default = "default_threshold")]
-    pub alpha_threshold: f32,
-    /// Coarse occupancy cells are `cell³` voxels.
-    #[serde(default = "default_cell")]
-    pub cell: usize,
-    /// A ray stops once its transmittance is below this.
-    #[serde(default = "default_stop")]
-    pub stop_transmittance: f32,
-    /// Kept samples per ray per pass through the model.
-    #[serde(default = "default_segment")]
-    pub segment: usize,
-}
-
-fn default_threshold() -> f32 {
-    1e-3
-}
-fn default_cell() -> usize {
-    2
-}
-fn default_stop() -> f32 {
-    1e-4
-}
-fn default_segment() -> usize {
-    12
-}
-
-impl Default for SkipOptions {
-    fn default() -> Self {
-        Self {
-            alpha_threshold: default_threshold(),
-            cell: default_cell(),
-            stop_transmittance: default_stop(),
-            segment: default_segment(),
-        }
-    }
-}
-
-impl SkipOptions {
-    pub fn problems(&self) -> Vec<String> {
-        let mut problems = Vec::new();
-        if !self.alpha_threshold.is_finite() || self.alpha_threshold >= 1.0 {
-            problems.push(format!(
-                "alpha_threshold: {} (accepted: a finite number below 1)",
-                self.alpha_threshold
-            ));
-        }
-        if self.cell == 0 {
-            problems.push("cell: 0 (accepted: an integer >= 1)".into());
-        }
-        if !(0.0..1.0).contains(&self.stop_transmittance) {
-            problems.push(format!(
-                "stop_transmittance: {} (accepted: [0, 1))",
-                self.stop_transmittance
-            ));
-        }
-        if self.segment == 0 {
-            problems.push("segment: 0 (accepted: an integer >= 1)".into());
-        }
-        problems
-    }
-}
-
-/// Coarse occupancy of a voxel field.
-#[derive(Clone, Debug)]
-pub struct OccupancyGrid {
-    /// Whether each fine voxel `[Z, Y, X]` (row-major) lies in an occupied coarse cell: the
-    /// coarse cells spread back over their voxels, so that a lookup is one index, with no
-    /// division by the cell size on the renderer's hottest path.
-    kept: Vec<bool>,
-    /// Fine voxels `[Z, Y, X]`.
-    voxels: [usize; 3],
-    /// Whether a sample outside the grid (zero feature) is dense enough to keep.
-    outside_occupied: bool,
-    /// Fraction of voxels with α above the threshold, before dilation.
-    pub occupied_fraction: f64,
-}
-
+/// Building the grid from a voxel field: one pass of the alpha head over every voxel.
 impl OccupancyGrid {
     /// Evaluates α at every voxel centre, a bounded number of table rows at a time.
     pub fn build(scene: &VoxelScene, options: &SkipOptions) -> Self {
@@ -166,84 +86,13 @@ impl OccupancyGrid {
                 );
             }
         }
-        let count = fine.iter().filter(|&&occupied| occupied).count();
         let zero = Tensor::<3>::zeros([1, 1, channels], &device);
         let outside_occupied = logits_of(zero)
             .first()
             .is_some_and(|&s| s > threshold_logit);
 
-        // Dilate by one voxel (a trilinear sample reads the 8 voxels around it), one axis at a
-        // time, then pool into coarse cells: O(voxels), where marking the 27 neighbours' cells
-        // of every occupied voxel was 27 writes per voxel.
-        let dilated = dilate_by_one(&fine, [z, y, x]);
-        let cell = options.cell.max(1);
-        let coarse = [z.div_ceil(cell), y.div_ceil(cell), x.div_ceil(cell)];
-        let mut occupied = vec![false; coarse[0] * coarse[1] * coarse[2]];
-        for iz in 0..z {
-            for iy in 0..y {
-                let fine_row = &dilated[(iz * y + iy) * x..(iz * y + iy + 1) * x];
-                let coarse_row = ((iz / cell) * coarse[1] + iy / cell) * coarse[2];
-                for (ix, &voxel) in fine_row.iter().enumerate() {
-                    if voxel {
-                        occupied[coarse_row + ix / cell] = true;
-                    }
-                }
-            }
-        }
-        let mut kept = Vec::with_capacity(z * y * x);
-        for iz in 0..z {
-            for iy in 0..y {
-                let coarse_row = ((iz / cell) * coarse[1] + iy / cell) * coarse[2];
-                kept.extend((0..x).map(|ix| occupied[coarse_row + ix / cell]));
-            }
-        }
-        Self {
-            kept,
-            voxels: [z, y, x],
-            outside_occupied,
-            occupied_fraction: count as f64 / (z * y * x).max(1) as f64,
-        }
+        Self::from_fine(&fine, [z, y, x], options.cell, outside_occupied)
     }
-
-    /// Whether a sample at `p` (voxel units, x y z) may have α above the threshold.
-    /// The nearest voxel is `⌊v + ½⌋` along each axis (`round` is a libm call on x86-64, and
-    /// only ties at exactly half a voxel differ).
-    #[inline(always)]
-    pub fn keeps(&self, p: [f32; 3]) -> bool {
-        let [z, y, x] = self.voxels;
-        let nearest = |v: f32, n: usize| -> Option<usize> {
-            let r = (v + 0.5).floor();
-            (r >= 0.0 && r < n as f32).then_some(r as usize)
-        };
-        match (nearest(p[0], x), nearest(p[1], y), nearest(p[2], z)) {
-            (Some(ix), Some(iy), Some(iz)) => self.kept[(iz * y + iy) * x + ix],
-            _ => self.outside_occupied,
-        }
-    }
-}
-
-/// `grid` (`[Z, Y, X]`, row-major) with every voxel next to an occupied one (the 26
-/// neighbours) occupied too: a maximum filter of width 3, separable into one pass per axis.
-fn dilate_by_one(grid: &[bool], [z, y, x]: [usize; 3]) -> Vec<bool> {
-    let mut current = grid.to_vec();
-    // Along each axis in turn: a voxel is set when it or a neighbour along that axis is.
-    // Lines along the axis are `len` voxels `stride` apart; `outer` blocks of `inner` lines.
-    for (stride, len) in [(1, x), (x, y), (x * y, z)] {
-        let source = current.clone();
-        let block = stride * len;
-        for start in (0..source.len()).step_by(block.max(1)) {
-            for offset in 0..stride {
-                let line = start + offset;
-                for position in 0..len {
-                    let i = line + position * stride;
-                    current[i] = source[i]
-                        || (position > 0 && source[i - stride])
-                        || (position + 1 < len && source[i + stride]);
-                }
-            }
-        }
-    }
-    current
 }
 
 /// Rays per parallel task when listing kept samples.
