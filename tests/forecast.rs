@@ -3,7 +3,7 @@
 //! a forecast that sees nothing of the future but the actions, a log without a future, and
 //! parameters it refuses.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 
@@ -127,6 +127,20 @@ fn eval_forecast_scores_every_context_and_writes_every_file_it_promises() {
             }
         }
         assert!(points("model", "static") > 10 * points("model", "moving_vehicles"));
+    }
+    // On this scene, at 3 s, the network adds to the ego warp it starts from: the shipped pair
+    // reads latent L1 0.48 against 0.65 and Chamfer 2.62 against 2.71 m². A model that only
+    // warps, or ignores the context, does not.
+    let at_3s = &rows[1];
+    for score in ["latent_l1", "chamfer"] {
+        let (model, warp) = (
+            at_3s["model"][score].as_f64().expect("model"),
+            at_3s["latent_ego_warp"][score].as_f64().expect("warp"),
+        );
+        assert!(
+            model < warp,
+            "{score} at 3 s: model {model}, latent_ego_warp {warp}"
+        );
     }
     assert!(dir.path().join("chamfer.png").is_file());
 
@@ -339,4 +353,78 @@ fn the_forecast_graph_refuses_actions_and_horizons_it_cannot_forecast() {
         "{}",
         text(&output)
     );
+}
+
+#[test]
+fn the_live_graph_forecasts_while_the_log_replays_in_real_time() {
+    let dir = tempfile::tempdir().expect("dir");
+    // 3 s at 12 Hz: 36 sweeps, paced; the history fills after 1.5 s of them.
+    let data = synth(dir.path(), 9713, 3.0);
+    let out = dir.path().join("live");
+    let metrics = dir.path().join("metrics.json");
+    let started = std::time::Instant::now();
+    let output = bevworld_owned(&[
+        "run".into(),
+        "configs/graphs/forecast_live.yaml".into(),
+        "--set".into(),
+        format!("source.data={}", path(&data)),
+        "--set".into(),
+        format!("files.out={}", path(&out)),
+        "--metrics".into(),
+        path(&metrics),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    // The 36 sweeps are released 1/12 s apart: the last 35/12 s after the first.
+    assert!(
+        started.elapsed() >= std::time::Duration::from_millis(2900),
+        "{:?}",
+        started.elapsed()
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&metrics).expect("metrics")).expect("JSON");
+    assert_eq!(report["outcome"], "completed", "{report}");
+    let nodes = report["nodes"].as_array().expect("nodes");
+    let edges = report["edges"].as_array().expect("edges");
+    let node = |id: &str| {
+        nodes
+            .iter()
+            .find(|n| n["id"] == id)
+            .unwrap_or_else(|| panic!("no node {id}: {report}"))
+    };
+    assert_eq!(node("source")["items_out"], 36, "{report}");
+    let forecasts = node("rollout")["items_out"].as_u64().expect("forecasts");
+    assert!(forecasts >= 1, "{report}");
+    // What the slow nodes could not keep up with is dropped on their edges, and each drop is
+    // counted as its node's.
+    for n in nodes {
+        let id = n["id"].as_str().expect("id");
+        let dropped: u64 = edges
+            .iter()
+            .filter(|e| {
+                e["to"]
+                    .as_str()
+                    .is_some_and(|to| to.starts_with(&format!("{id}.")))
+            })
+            .map(|e| e["dropped"].as_u64().expect("dropped"))
+            .sum();
+        assert_eq!(n["drops"], dropped, "{id}: {report}");
+    }
+    // Every forecast made is written, at every horizon.
+    let contexts: Vec<PathBuf> = std::fs::read_dir(&out)
+        .expect("out")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .collect();
+    assert_eq!(contexts.len() as u64, forecasts);
+    for context in &contexts {
+        for horizon in ["+0.5s", "+1s", "+3s"] {
+            let folder = context.join(horizon);
+            assert!(
+                folder.join("CAM_FRONT.png").is_file() && folder.join("LIDAR_TOP.ply").is_file(),
+                "{}",
+                folder.display()
+            );
+        }
+    }
 }

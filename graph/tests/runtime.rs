@@ -333,27 +333,42 @@ edges:
 "#,
     );
     assert!(outcome.error.is_none());
-    // 13 items at 60 Hz: the last is released 12/60 s = 200 ms after the first.
+    // 13 items at 60 Hz: the last is released 12/60 s = 200 ms after the first. The upper
+    // bound is loose for a loaded machine, and a rate misread by ten (2 s) still fails it.
+    let elapsed = started.elapsed();
     assert!(
-        started.elapsed() >= Duration::from_millis(195),
-        "{:?}",
-        started.elapsed()
+        elapsed >= Duration::from_millis(195) && elapsed < Duration::from_millis(1200),
+        "{elapsed:?}"
     );
 }
 
 #[test]
 fn fan_out_shares_payloads_instead_of_copying() {
-    use bevworld_graph::{Header, Message};
-    let message = Message::new(
-        Header {
-            seq: 0,
-            time_of_validity_us: 0,
-            entered_graph: bevworld_graph::Instant::now(),
-        },
-        vec![0u8; 1 << 20],
+    // One output read by two sinks: each item reaches both as the one allocation the source
+    // made (the sinks hold every payload, so no address is reused in between).
+    let outcome = run_yaml(
+        r#"
+nodes:
+  - {id: src, kind: count, params: {count: 6}}
+  - {id: a, kind: record, params: {name: fan_a, keep: true}}
+  - {id: b, kind: record, params: {name: fan_b, keep: true}}
+edges:
+  - {from: src.out, to: a.in}
+  - {from: src.out, to: b.in}
+"#,
     );
-    let copy = message.clone();
-    assert!(copy.shares_payload_with(&message));
+    assert!(outcome.error.is_none(), "{:?}", outcome.error);
+    let (a, b) = (common::kept("fan_a"), common::kept("fan_b"));
+    assert_eq!(a.len(), 6);
+    assert_eq!(b.len(), 6);
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.value, y.value);
+        assert!(
+            std::sync::Arc::ptr_eq(x, y),
+            "item {} was copied on the way to the second sink",
+            x.value
+        );
+    }
 }
 
 #[test]

@@ -4,7 +4,7 @@
 #![allow(dead_code)]
 
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
 use bevworld_graph::{
@@ -49,6 +49,26 @@ pub fn recorded(name: &str) -> Vec<u64> {
 fn records() -> &'static Mutex<Vec<(String, u64)>> {
     static RECORDS: OnceLock<Mutex<Vec<(String, u64)>>> = OnceLock::new();
     RECORDS.get_or_init(|| Mutex::new(Vec::new()))
+}
+
+/// The payloads a recording sink with `keep: true` received, held alive so that two equal
+/// pointers can only be one allocation.
+pub fn kept(name: &str) -> Vec<Arc<Counted>> {
+    kept_payloads()
+        .lock()
+        .unwrap()
+        .iter()
+        .filter(|(n, _)| n == name)
+        .map(|(_, payload)| Arc::clone(payload))
+        .collect()
+}
+
+/// Payloads by sink name.
+type Kept = Mutex<Vec<(String, Arc<Counted>)>>;
+
+fn kept_payloads() -> &'static Kept {
+    static KEPT: OnceLock<Kept> = OnceLock::new();
+    KEPT.get_or_init(|| Mutex::new(Vec::new()))
 }
 
 #[derive(Deserialize, Serialize)]
@@ -144,6 +164,9 @@ pub struct RecordParams {
     pub name: String,
     #[serde(default)]
     pub sleep_us: u64,
+    /// Keep each payload alive (see `kept`).
+    #[serde(default)]
+    pub keep: bool,
 }
 
 struct RecordSink {
@@ -152,7 +175,14 @@ struct RecordSink {
 
 impl Sink for RecordSink {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let value = inputs.get::<Counted>("in")?.value;
+        let payload = inputs.shared::<Counted>("in")?;
+        let value = payload.value;
+        if self.params.keep {
+            kept_payloads()
+                .lock()
+                .unwrap()
+                .push((self.params.name.clone(), payload));
+        }
         if self.params.sleep_us > 0 {
             std::thread::sleep(Duration::from_micros(self.params.sleep_us));
         }

@@ -95,11 +95,13 @@ fn one_step_lowers_the_loss_of_a_fixed_batch() {
 }
 
 #[test]
-fn a_few_dozen_steps_overfit_one_frame() {
+fn a_hundred_steps_on_one_frame_fit_it() {
     let mut trainer = fixed_batch_trainer(5e-3);
     let before = trainer.validate().expect("validation");
-    // With the tiny config's 1/4 camera rays this frame goes 15.5 -> 18.0 dB in 80 steps and
-    // 18.5 dB in 100 (16.9 dB at step 60, on the way up); 100 leaves a margin.
+    // Not overfitting, which takes thousands of steps (tokenizer-training.md's nuScenes fit):
+    // the same frame, step after step, must be fitted fast. With the tiny config's 1/4 camera
+    // rays it goes 15.5 -> 18.0 dB in 80 steps and 18.5 dB in 100 (16.9 dB at step 60); the
+    // bar, +2.5 dB, fails a step that learns at half that rate.
     for _ in 0..100 {
         trainer.train_step().expect("step");
     }
@@ -107,7 +109,7 @@ fn a_few_dozen_steps_overfit_one_frame() {
     let psnr = |v: &ValidationReport| v.psnr_db.expect("the full model renders cameras");
     let chamfer = |v: &ValidationReport| v.chamfer_m2.expect("the full model renders LiDAR");
     assert!(
-        psnr(&after) > psnr(&before) + 2.0,
+        psnr(&after) > psnr(&before) + 2.5,
         "PSNR {:.2} -> {:.2} dB",
         psnr(&before),
         psnr(&after)
