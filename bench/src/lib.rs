@@ -10,6 +10,8 @@
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+pub mod readme;
+
 use std::path::PathBuf;
 
 /// Where results go: `bench/results/`, from any working directory.
@@ -83,19 +85,17 @@ pub fn machine_kind(record: &serde_json::Value) -> String {
 /// Nearest-rank percentile, the one the forecast metrics report.
 pub use bevworld_metrics::forecast_node::percentile;
 
-/// PSNR in dB of two images with values in [0, 1]; infinite when they are equal.
+/// PSNR in dB of two images of one size with values in [0, 1], flat: the metrics' one
+/// definition (`bevworld_metrics::psnr`); infinite when they are equal.
 pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
-    let mse = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| f64::from(x - y).powi(2))
-        .sum::<f64>()
-        / a.len().max(1) as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        10.0 * (1.0 / mse).log10()
-    }
+    let flat = |data| bevworld_metrics::Planes {
+        data,
+        channels: 1,
+        height: 1,
+        width: a.len(),
+    };
+    bevworld_metrics::psnr(&flat(a), &flat(b), 1.0)
+        .expect("a benchmark compares two finite, non-empty images of one size")
 }
 
 /// The tiny training config's held-out synthetic set under the repository `root`, made on

@@ -1,0 +1,671 @@
+//! The README's results table, generated from the figures in `bench/results/*.json`. Each
+//! figure exists once, in those files; the README holds this table between two markers, a
+//! test (below) fails when the two disagree, and
+//! `cargo run --release -p bevworld-bench --bin readme_results -- --write` rewrites it.
+//! A target's verdict (met or missed) is computed here from the figure, never typed.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+/// The line above the generated table.
+pub const BEGIN: &str = "<!-- results: generated from bench/results/*.json by `cargo run --release -p bevworld-bench --bin readme_results -- --write`; edit the JSON, not this table -->";
+/// The line below it.
+pub const END: &str = "<!-- end of generated results -->";
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReadmeError {
+    #[error("{path}: {message}")]
+    File { path: PathBuf, message: String },
+    #[error("{path}: no figure at `{pointer}`")]
+    Missing { path: PathBuf, pointer: String },
+    #[error("{path}: {message}")]
+    Markers { path: PathBuf, message: String },
+}
+
+/// The result files of one folder, each read once.
+struct Figures {
+    dir: PathBuf,
+    files: HashMap<String, Value>,
+}
+
+impl Figures {
+    fn new(dir: &Path) -> Self {
+        Self {
+            dir: dir.to_path_buf(),
+            files: HashMap::new(),
+        }
+    }
+
+    fn path(&self, file: &str) -> PathBuf {
+        self.dir.join(format!("{file}.json"))
+    }
+
+    fn file(&mut self, file: &str) -> Result<&Value, ReadmeError> {
+        if !self.files.contains_key(file) {
+            let path = self.path(file);
+            let bytes = std::fs::read(&path).map_err(|e| ReadmeError::File {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            let value = serde_json::from_slice(&bytes).map_err(|e| ReadmeError::File {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            self.files.insert(file.to_string(), value);
+        }
+        self.files.get(file).ok_or_else(|| ReadmeError::Missing {
+            path: self.path(file),
+            pointer: String::new(),
+        })
+    }
+
+    /// The value at a JSON pointer (`/test/psnr_db`).
+    fn value(&mut self, file: &str, pointer: &str) -> Result<Value, ReadmeError> {
+        let path = self.path(file);
+        self.file(file)?
+            .pointer(pointer)
+            .cloned()
+            .ok_or_else(|| ReadmeError::Missing {
+                path,
+                pointer: pointer.to_string(),
+            })
+    }
+
+    fn number(&mut self, file: &str, pointer: &str) -> Result<f64, ReadmeError> {
+        let path = self.path(file);
+        self.value(file, pointer)?
+            .as_f64()
+            .ok_or_else(|| ReadmeError::Missing {
+                path,
+                pointer: format!("{pointer} (a number)"),
+            })
+    }
+
+    fn text(&mut self, file: &str, pointer: &str) -> Result<String, ReadmeError> {
+        let path = self.path(file);
+        self.value(file, pointer)?
+            .as_str()
+            .map(str::to_string)
+            .ok_or_else(|| ReadmeError::Missing {
+                path,
+                pointer: format!("{pointer} (a text)"),
+            })
+    }
+
+    fn count(&mut self, file: &str, pointer: &str) -> Result<usize, ReadmeError> {
+        let path = self.path(file);
+        let value = self.value(file, pointer)?;
+        value
+            .as_u64()
+            .map(|n| n as usize)
+            .or_else(|| value.as_array().map(Vec::len))
+            .ok_or_else(|| ReadmeError::Missing {
+                path,
+                pointer: format!("{pointer} (a count)"),
+            })
+    }
+
+    /// The index of the forecast table's row for `horizon_s`.
+    fn horizon(&mut self, file: &str, horizon_s: f64) -> Result<String, ReadmeError> {
+        let rows = self.count(file, "/horizons")?;
+        for row in 0..rows {
+            if (self.number(file, &format!("/horizons/{row}/horizon_s"))? - horizon_s).abs() < 1e-9
+            {
+                return Ok(format!("/horizons/{row}"));
+            }
+        }
+        Err(ReadmeError::Missing {
+            path: self.path(file),
+            pointer: format!("/horizons/*/horizon_s = {horizon_s}"),
+        })
+    }
+
+    /// One method's figure at 0.5, 1 and 3 s, as `a / b / c`.
+    fn per_horizon(
+        &mut self,
+        file: &str,
+        method_and_figure: &str,
+        digits: usize,
+    ) -> Result<String, ReadmeError> {
+        let mut cells = Vec::new();
+        for horizon in [0.5, 1.0, 3.0] {
+            let row = self.horizon(file, horizon)?;
+            let value = self.number(file, &format!("{row}/{method_and_figure}"))?;
+            cells.push(format!("{value:.digits$}"));
+        }
+        Ok(cells.join(" / "))
+    }
+}
+
+/// `n` and a noun, plural when `n` is not 1.
+fn counted(n: usize, noun: &str) -> String {
+    if n == 1 {
+        format!("{n} {noun}")
+    } else {
+        format!("{n} {noun}s")
+    }
+}
+
+fn verdict(met: bool) -> &'static str {
+    if met { "met" } else { "**missed**" }
+}
+
+/// A row: what was measured, the figure, and the page with the details.
+type Row = (String, String, &'static str);
+
+fn tokenizer(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "tokenizer-test-tokenizer-tiny";
+    let psnr = f.number(file, "/test/psnr_db")?;
+    let chamfer = f.number(file, "/test/chamfer_m2")?;
+    Ok((
+        format!(
+            "Tiny tokenizer, held-out test scenes ({} scenes, {} keyframes), mean ± spread over scenes",
+            f.count(file, "/test/scenes")?,
+            f.count(file, "/test/frames")?
+        ),
+        format!(
+            "{psnr:.2} ± {:.2} dB PSNR, {:.3} SSIM, {chamfer:.3} ± {:.3} m² Chamfer; targets 24 dB ({}) and 0.5 m² ({})",
+            f.number(file, "/test/scene_std/psnr_db")?,
+            f.number(file, "/test/ssim")?,
+            f.number(file, "/test/scene_std/chamfer_m2")?,
+            verdict(psnr >= 24.0),
+            verdict(chamfer <= 0.5),
+        ),
+        "[tokenizer-training.md](bench/results/tokenizer-training.md)",
+    ))
+}
+
+fn world_model(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "world-model-test";
+    // Future frames are 0.5 s apart: 0.5, 1 and 3 s are frames 1, 2 and 6.
+    let at = |f: &mut Figures, method: &str| -> Result<(String, f64, f64), ReadmeError> {
+        let mut cells = Vec::new();
+        for frame in [0, 1, 5] {
+            cells.push(format!(
+                "{:.3}",
+                f.number(file, &format!("/mean/{method}/{frame}"))?
+            ));
+        }
+        Ok((
+            cells.join(" / "),
+            f.number(file, &format!("/mean/{method}/5"))?,
+            f.number(file, &format!("/spread/{method}/5"))?,
+        ))
+    };
+    let (model, model_3s, spread_3s) = at(f, "world_model")?;
+    let (warp, warp_3s, _) = at(f, "ego_warp")?;
+    let (copy, _, _) = at(f, "copy_last")?;
+    let ratio = model_3s / warp_3s;
+    Ok((
+        format!(
+            "Tiny world model, held-out test scenes ({} scenes, {} windows, {}), standardised latent L1",
+            f.count(file, "/scenes")?,
+            f.count(file, "/windows")?,
+            counted(f.count(file, "/sampler_steps")?, "DDIM step")
+        ),
+        format!(
+            "{model} at 0.5 / 1 / 3 s (± {spread_3s:.3} over scenes at 3 s), against ego-warp {warp} and copy-last {copy}; {ratio:.3}× ego-warp at 3 s (target 0.85×: {})",
+            verdict(ratio <= 0.85)
+        ),
+        "[world-model-training.md](bench/results/world-model-training.md)",
+    ))
+}
+
+fn forecast(f: &mut Figures, file: &str, what: &str) -> Result<Row, ReadmeError> {
+    let model = f.per_horizon(file, "model/chamfer", 3)?;
+    let warp = f.per_horizon(file, "latent_ego_warp/chamfer", 3)?;
+    let raw_warp = f.per_horizon(file, "ego_warp/chamfer", 3)?;
+    let copy = f.per_horizon(file, "copy_last/chamfer", 3)?;
+    let oracle = f.per_horizon(file, "oracle/chamfer", 3)?;
+    Ok((
+        format!(
+            "{what} ({} contexts, {}), LiDAR Chamfer",
+            f.count(file, "/contexts")?,
+            counted(f.count(file, "/steps")?, "DDIM step")
+        ),
+        format!(
+            "{model} m² at 0.5 / 1 / 3 s, against `latent_ego_warp` {warp}, raw `ego_warp` {raw_warp}, `copy_last` {copy} and the tokenizer's floor (`oracle`) {oracle}; {:.0} ms per forecast",
+            f.number(file, "/ms_per_forecast")?
+        ),
+        "[forecast.md](bench/results/forecast.md)",
+    ))
+}
+
+fn agents(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "forecast-test";
+    let recall = |f: &mut Figures, horizon: f64, method: &str, class: &str, at: &str| {
+        let row = f.horizon(file, horizon)?;
+        f.number(file, &format!("{row}/{method}/agents/{class}/recall_{at}"))
+    };
+    let moving = |f: &mut Figures, method: &str| -> Result<String, ReadmeError> {
+        Ok(format!(
+            "{:.2} / {:.2}",
+            recall(f, 1.0, method, "moving_vehicles", "1m")?,
+            recall(f, 3.0, method, "moving_vehicles", "1m")?
+        ))
+    };
+    let (model, warp, oracle) = (
+        moving(f, "model")?,
+        moving(f, "latent_ego_warp")?,
+        moving(f, "oracle")?,
+    );
+    let parked = |f: &mut Figures, method: &str| recall(f, 1.0, method, "parked_vehicles", "0.5m");
+    Ok((
+        "The agents in those forecasts (the true sweep split by the dataset's boxes)".into(),
+        format!(
+            "moving vehicles, recall@1 m at 1 / 3 s: {model} against `latent_ego_warp` {warp} and the tokenizer's floor {oracle}; parked vehicles, recall@0.5 m at 1 s: {:.2} against the raw ego warp's {:.2} (floor {:.2})",
+            parked(f, "model")?,
+            parked(f, "ego_warp")?,
+            parked(f, "oracle")?
+        ),
+        "[forecast.md](bench/results/forecast.md)",
+    ))
+}
+
+fn control(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "control-test";
+    let accuracy = f.number(file, "/accuracy")?;
+    Ok((
+        format!(
+            "Action control, branched held-out scenes ({} contexts, {} manoeuvres)",
+            f.count(file, "/contexts")?,
+            f.count(file, "/manoeuvres")?
+        ),
+        format!(
+            "{:.0}% of {} pairs closest to their own truth at {} s, swap ratio {:.2} (target 90%: {})",
+            100.0 * accuracy,
+            f.count(file, "/pairs")?,
+            f.number(file, "/horizon_s")?,
+            f.number(file, "/swap_ratio")?,
+            verdict(accuracy >= 0.9)
+        ),
+        "[forecast.md](bench/results/forecast.md)",
+    ))
+}
+
+fn devkit(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "nuscenes-devkit";
+    Ok((
+        format!(
+            "The synthetic world in the official {}",
+            f.text(file, "/devkit")?
+        ),
+        format!(
+            "loads as a nuScenes folder does; its `points_in_box` finds each box's recorded `num_lidar_pts` in {} of {} boxes",
+            f.count(file, "/num_lidar_pts_equal_to_points_in_box")?,
+            f.count(file, "/boxes")?
+        ),
+        "[nuscenes-devkit.md](bench/results/nuscenes-devkit.md)",
+    ))
+}
+
+fn lidar_depth(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "lidar_depth-synth-val";
+    let last = f.count(file, "/by_range")?.saturating_sub(1);
+    Ok((
+        "Rendered LiDAR depth, by range (validation scenes)".into(),
+        format!(
+            "mean error {:.2} m at {} m to {:.1} m at {} m",
+            f.number(file, "/by_range/0/mean_abs_error_m")?,
+            f.text(file, "/by_range/0/range_m")?,
+            f.number(file, &format!("/by_range/{last}/mean_abs_error_m"))?,
+            f.text(file, &format!("/by_range/{last}/range_m"))?
+        ),
+        "[lidar_depth-synth-val.md](bench/results/lidar_depth-synth-val.md)",
+    ))
+}
+
+fn inference(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "tokenizer";
+    Ok((
+        "Tokenizer inference (tiny, real keyframe, 2 cores)".into(),
+        format!(
+            "encoder {:.0} ms with its input preparation, voxel lift {:.0} ms, dense render {:.0} ms, with empty-space skipping {:.0} ms",
+            f.number(file, "/encoder_ms_p50")?,
+            f.number(file, "/lift_ms_p50")?,
+            f.number(file, "/render_dense_ms_p50")?,
+            f.number(file, "/render_skipping/0/ms_p50")?
+        ),
+        "[tokenizer.md](bench/results/tokenizer.md)",
+    ))
+}
+
+fn vs_pytorch(f: &mut Figures, kinds: &[&str]) -> Result<Row, ReadmeError> {
+    let mut parts = Vec::new();
+    for kind in kinds {
+        let file = format!("vs-pytorch-{kind}");
+        let file = file.as_str();
+        let mut pairs = Vec::new();
+        let mut behind = Vec::new();
+        for (name, ours, eager) in [
+            ("encoder", "/ours/2/encoder_ms", "/torch/eager/2/encoder_ms"),
+            ("lift", "/ours/2/lift_ms", "/torch/eager/2/lift_ms"),
+            (
+                "dense render",
+                "/ours/2/render_dense_ms",
+                "/torch/eager/2/render_dense_ms",
+            ),
+            (
+                "world-model pass",
+                "/ours/world_model/2",
+                "/torch/eager/2/world_model_ms",
+            ),
+        ] {
+            let (ours, eager) = (f.number(file, ours)?, f.number(file, eager)?);
+            pairs.push(format!("{name} {ours:.1} / {eager:.1} ms"));
+            if ours > eager {
+                behind.push(name);
+            }
+        }
+        let verdict = if behind.is_empty() {
+            "parity met".to_string()
+        } else {
+            format!("parity **missed** for the {}", behind.join(", "))
+        };
+        parts.push(format!(
+            "{}: {}; {verdict}",
+            f.text(file, "/machine/cpu")?,
+            pairs.join(", ")
+        ));
+    }
+    Ok((
+        "Beside PyTorch eager on the same 2 cores (same weights, outputs checked equal first), ours / eager, 2 threads".into(),
+        parts.join(". "),
+        "[vs-pytorch.md](bench/results/vs-pytorch.md)",
+    ))
+}
+
+fn runtime(f: &mut Figures) -> Result<Row, ReadmeError> {
+    Ok((
+        "Runtime".into(),
+        format!(
+            "{:.2} M small messages/s through 5 nodes; a hop {:.0} µs p50",
+            f.number("runtime", "/small/msgs_per_s")? / 1e6,
+            f.number("runtime", "/small/paced_hop_p50_us")?
+        ),
+        "[runtime.md](bench/results/runtime.md)",
+    ))
+}
+
+fn sensors(f: &mut Figures) -> Result<Row, ReadmeError> {
+    Ok((
+        "Sensor replay".into(),
+        format!(
+            "nuScenes frames (6 JPEGs + sweep) at {:.1} Hz",
+            f.number("sensors", "/nuscenes_graph_hz")?
+        ),
+        "[sensors.md](bench/results/sensors.md)",
+    ))
+}
+
+fn pillarize(f: &mut Figures) -> Result<Row, ReadmeError> {
+    Ok((
+        "Pillarization".into(),
+        format!(
+            "{:.2} ms per nuScenes sweep, one core",
+            f.number("pillarize", "/nuscenes-sample/sparse_us_p50")? / 1e3
+        ),
+        "[pillarize.md](bench/results/pillarize.md)",
+    ))
+}
+
+fn speed_vs_error(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "speed-vs-error";
+    let last = f.count(file, "/steps")?.saturating_sub(1);
+    let point = |f: &mut Figures, i: usize| -> Result<String, ReadmeError> {
+        Ok(format!(
+            "{}: {:.0} ms per forecast, Chamfer {:.2} / {:.2} m² at 1 / 3 s",
+            counted(f.count(file, &format!("/steps/{i}/steps"))?, "DDIM step"),
+            f.number(file, &format!("/steps/{i}/latency_ms/rollout_p50"))?,
+            f.number(file, &format!("/steps/{i}/chamfer_1s"))?,
+            f.number(file, &format!("/steps/{i}/chamfer_3s"))?
+        ))
+    };
+    let (first, most) = (point(f, 0)?, point(f, last)?);
+    let measured_on = f
+        .text(file, "/measured_on")
+        .map(|on| format!("; measured on {on}"))
+        .unwrap_or_default();
+    Ok((
+        format!(
+            "Speed against error, held-out scenes ({} contexts{measured_on})",
+            f.count(file, "/steps/0/contexts")?
+        ),
+        format!("{first}; {most}"),
+        "[speed-vs-error.md](bench/results/speed-vs-error.md)",
+    ))
+}
+
+fn binary_size(f: &mut Figures) -> Result<Row, ReadmeError> {
+    Ok((
+        "What a user installs (`cargo build --profile dist`)".into(),
+        format!(
+            "a {:.0} MB binary ({}), against {:.0} MB from `--release` with line tables",
+            f.number("binary-size", "/dist_bytes")? / 1e6,
+            f.text("binary-size", "/backends")?,
+            f.number("binary-size", "/release_bytes")? / 1e6
+        ),
+        "[binary-size.md](bench/results/binary-size.md)",
+    ))
+}
+
+fn nuscenes_fit(f: &mut Figures) -> Result<Row, ReadmeError> {
+    // The fit's validation rows in its metrics log; the last is the shipped figure.
+    let path = f.dir.join("tokenizer-fit-nuscenes-metrics.csv");
+    let failed = |message: String| ReadmeError::File {
+        path: path.clone(),
+        message,
+    };
+    let text = std::fs::read_to_string(&path).map_err(|e| failed(e.to_string()))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines
+        .next()
+        .ok_or_else(|| failed("empty".into()))?
+        .split(',')
+        .collect();
+    let column = |name: &str| {
+        header
+            .iter()
+            .position(|c| *c == name)
+            .ok_or_else(|| failed(format!("no column `{name}`")))
+    };
+    let (phase, step) = (column("phase")?, column("step")?);
+    let (psnr, ssim, chamfer) = (column("psnr_db")?, column("ssim")?, column("chamfer_m2")?);
+    let last = lines
+        .map(|line| line.split(',').collect::<Vec<_>>())
+        .rfind(|cells| cells.get(phase) == Some(&"val"))
+        .ok_or_else(|| failed("no validation row".into()))?;
+    let number = |i: usize| -> Result<f64, ReadmeError> {
+        last.get(i)
+            .and_then(|cell| cell.parse::<f64>().ok())
+            .ok_or_else(|| failed(format!("the last validation row has no `{}`", header[i])))
+    };
+    let (p, c) = (number(psnr)?, number(chamfer)?);
+    Ok((
+        "One real nuScenes keyframe, a tiny tokenizer fitted to it".into(),
+        format!(
+            "{p:.2} dB, {:.3} SSIM, {c:.3} m² after {} steps; targets 25 dB ({}) and 0.2 m² ({})",
+            number(ssim)?,
+            number(step)?,
+            verdict(p >= 25.0),
+            verdict(c <= 0.2)
+        ),
+        "[tokenizer-training.md](bench/results/tokenizer-training.md)",
+    ))
+}
+
+fn long_rollout(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "long-rollout";
+    let interval = f.number(file, "/interval_s")?;
+    let methods = f.value(file, "/methods")?;
+    let index = |name: &str| {
+        methods
+            .as_array()
+            .and_then(|m| m.iter().position(|v| v == name))
+            .ok_or_else(|| ReadmeError::Missing {
+                path: f.path(file),
+                pointer: format!("/methods (`{name}`)"),
+            })
+    };
+    let (model, warp) = (index("model")?, index("latent_ego_warp")?);
+    let mut cells = |method: usize| -> Result<String, ReadmeError> {
+        let mut cells = Vec::new();
+        for seconds in [0.5, 3.0, 10.0, 20.0] {
+            let frame = (seconds / interval).round() as usize - 1;
+            cells.push(format!(
+                "{:.2}",
+                f.number(file, &format!("/mean_l1/{method}/{frame}"))?
+            ));
+        }
+        Ok(cells.join(" / "))
+    };
+    let (ours, theirs) = (cells(model)?, cells(warp)?);
+    let measured_on = f
+        .text(file, "/measured_on")
+        .map(|on| format!(" (measured on {on})"))
+        .unwrap_or_default();
+    Ok((
+        format!("A 20 s autoregressive rollout, held-out scenes{measured_on}"),
+        format!(
+            "latent L1 {ours} at +0.5 / 3 / 10 / 20 s, against the chained `latent_ego_warp` {theirs}"
+        ),
+        "[long-rollout.md](bench/results/long-rollout.md)",
+    ))
+}
+
+fn memory(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "memory";
+    let size = |f: &mut Figures, name: &str| -> Result<String, ReadmeError> {
+        for i in 0..f.count(file, "")? {
+            if f.text(file, &format!("/{i}/size"))? == name {
+                return Ok(format!("/{i}"));
+            }
+        }
+        Err(ReadmeError::Missing {
+            path: f.path(file),
+            pointer: format!("/*/size = {name}"),
+        })
+    };
+    let (tiny, paper) = (size(f, "tiny")?, size(f, "paper")?);
+    Ok((
+        "World model memory".into(),
+        format!(
+            "one forecast peaks at {:.0} MiB (tiny) and {:.1} GiB (paper size); a tiny training step at {:.0} MiB",
+            f.number(file, &format!("{tiny}/forecast_peak_mib"))?,
+            f.number(file, &format!("{paper}/forecast_peak_mib"))? / 1024.0,
+            f.number(file, &format!("{tiny}/training_step_peak_mib"))?
+        ),
+        "[memory.md](bench/results/memory.md)",
+    ))
+}
+
+/// The README's results table from the result files in `dir`.
+pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
+    let mut f = Figures::new(dir);
+    let rows = [
+        tokenizer(&mut f)?,
+        nuscenes_fit(&mut f)?,
+        world_model(&mut f)?,
+        forecast(
+            &mut f,
+            "forecast-test",
+            "Forecasts rendered in the graph, held-out test scenes",
+        )?,
+        forecast(
+            &mut f,
+            "forecast-demo",
+            "The same on the demo scene of the first command",
+        )?,
+        agents(&mut f)?,
+        control(&mut f)?,
+        devkit(&mut f)?,
+        lidar_depth(&mut f)?,
+        inference(&mut f)?,
+        vs_pytorch(&mut f, &["amd-epyc", "intel-xeon-avx512"])?,
+        runtime(&mut f)?,
+        sensors(&mut f)?,
+        pillarize(&mut f)?,
+        speed_vs_error(&mut f)?,
+        long_rollout(&mut f)?,
+        memory(&mut f)?,
+        binary_size(&mut f)?,
+    ];
+    let mut table = vec![
+        "| what | figure | details |".to_string(),
+        "|---|---|---|".to_string(),
+    ];
+    for (what, figure, details) in rows {
+        table.push(format!("| {what} | {figure} | {details} |"));
+    }
+    Ok(table.join("\n"))
+}
+
+/// `readme` with the text between the markers replaced by `table`.
+pub fn with_table(readme: &str, table: &str, path: &Path) -> Result<String, ReadmeError> {
+    let markers = |message: &str| ReadmeError::Markers {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    };
+    let start = readme
+        .find(BEGIN)
+        .ok_or_else(|| markers("no line that begins the generated results"))?;
+    let end = readme
+        .find(END)
+        .ok_or_else(|| markers("no line that ends the generated results"))?;
+    if end < start {
+        return Err(markers("the results' end comes before their beginning"));
+    }
+    Ok(format!(
+        "{}{BEGIN}\n{table}\n{}",
+        &readme[..start],
+        &readme[end..]
+    ))
+}
+
+/// The workspace's README.
+pub fn readme_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_readme_quotes_the_figures_of_the_result_files() {
+        let path = readme_path();
+        let readme = std::fs::read_to_string(&path).expect("README.md");
+        let table = results_table(&crate::results_dir()).expect("every figure the table quotes");
+        let expected = with_table(&readme, &table, &path).expect("markers");
+        assert!(
+            readme == expected,
+            "README.md's results differ from bench/results/*.json: run \
+             `cargo run --release -p bevworld-bench --bin readme_results -- --write`"
+        );
+    }
+
+    #[test]
+    fn a_missing_figure_names_its_file_and_place() {
+        let dir = tempfile::tempdir().expect("dir");
+        std::fs::write(
+            dir.path().join("tokenizer-test-tokenizer-tiny.json"),
+            "{\"test\": {}}",
+        )
+        .expect("write");
+        let error = results_table(dir.path()).expect_err("no figures");
+        let text = error.to_string();
+        assert!(
+            text.contains("tokenizer-test-tokenizer-tiny.json") && text.contains("/test/psnr_db"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_readme_without_markers_is_refused() {
+        let error =
+            with_table("# readme\n", "| t |", Path::new("README.md")).expect_err("no markers");
+        assert!(error.to_string().contains("README.md"), "{error}");
+    }
+}
