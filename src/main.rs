@@ -321,7 +321,7 @@ fn run(path: &Path, set: &[String], metrics: Option<&Path>, progress: bool) -> R
             std::fs::create_dir_all(parent)
                 .with_context(|| format!("creating {}", parent.display()))?;
         }
-        std::fs::write(file, outcome.report.to_json())
+        bevworld_graph::io::write_atomic_now(file, outcome.report.to_json().as_bytes())
             .with_context(|| format!("writing metrics to {}", file.display()))?;
     }
     match outcome.error {

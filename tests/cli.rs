@@ -888,3 +888,64 @@ fn synth_never_writes_into_another_dataset() {
         }
     }
 }
+
+/// Every file a run writes appears whole or not at all: a run killed (SIGKILL, no draining)
+/// in the middle of writing images and sweeps leaves outputs that all decode, and at most the
+/// temporaries of the writes it was in, under their own names.
+#[test]
+fn a_killed_run_leaves_no_truncated_file() {
+    let Some(nuscenes) = nuscenes() else {
+        return;
+    };
+    let out = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_bevworld"))
+        .args([
+            "run",
+            "configs/graphs/replay.yaml",
+            "--set",
+            &format!("source.data={}", nuscenes.display()),
+            "--set",
+            "source.repeat=1000",
+            "--set",
+            &format!("images.out={}", out.path().display()),
+            "--set",
+            &format!("sweeps.out={}", out.path().display()),
+            "--no-progress",
+        ])
+        .current_dir(std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"))
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(2500));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let mut files = Vec::new();
+    let mut folders = vec![out.path().to_path_buf()];
+    while let Some(folder) = folders.pop() {
+        for entry in std::fs::read_dir(&folder).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                folders.push(path);
+            } else {
+                files.push(path);
+            }
+        }
+    }
+    let (mut pngs, mut plys) = (0, 0);
+    for file in &files {
+        let name = file.file_name().unwrap().to_string_lossy().to_string();
+        if name.ends_with(".tmp") || name == ".bevworld.lock" {
+            continue;
+        }
+        if name.ends_with(".png") {
+            image::open(file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+            pngs += 1;
+        } else if name.ends_with(".ply") {
+            assert!(bevworld_sinks_ply::read(file) > 0, "{}", file.display());
+            plys += 1;
+        } else {
+            panic!("an output nobody asked for: {}", file.display());
+        }
+    }
+    // The run got far enough for the check to mean something.
+    assert!(pngs >= 6 && plys >= 1, "{pngs} images, {plys} sweeps");
+}

@@ -138,11 +138,16 @@ pub fn write_results(
         "# {title}\n\nMachine: {}\n\nReproduce: `{command}`\n\n{table}\n{notes}\n",
         machine()
     );
-    let _ = std::fs::write(dir.join(format!("{name}.md")), markdown);
-    let _ = std::fs::write(
-        dir.join(format!("{name}.json")),
-        serde_json::to_string_pretty(json).unwrap_or_default(),
-    );
+    for (file, text) in [
+        (dir.join(format!("{name}.md")), markdown),
+        (
+            dir.join(format!("{name}.json")),
+            serde_json::to_string_pretty(json).unwrap_or_default(),
+        ),
+    ] {
+        bevworld_atomic_file::write(&file, text.as_bytes())
+            .unwrap_or_else(|e| panic!("writing {}: {e}", file.display()));
+    }
     println!(
         "results written to {}",
         dir.join(format!("{name}.md")).display()

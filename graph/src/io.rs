@@ -56,71 +56,15 @@ pub fn write_atomic(path: PathBuf, bytes: Vec<u8>) -> std::io::Result<PendingWri
     Ok(PendingWrite { path, handle })
 }
 
-/// The same, blocking the caller; for tools that are not in a graph.
-pub fn write_atomic_now(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let temporary = temporary_path(path);
-    std::fs::write(&temporary, bytes)?;
-    std::fs::rename(&temporary, path)
-}
+pub use bevworld_atomic_file::remove_stale_temporaries;
+/// The same, blocking the caller; for tools that are not in a graph (the workspace's one
+/// atomic writer, `bevworld_atomic_file::write`).
+pub use bevworld_atomic_file::write as write_atomic_now;
 
 async fn write_atomic_async(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let temporary = temporary_path(path);
+    let temporary = bevworld_atomic_file::temporary_path(path);
     tokio::fs::write(&temporary, bytes).await?;
     tokio::fs::rename(&temporary, path).await
-}
-
-/// A temporary name beside `path`, unique per write: two writes to one path in flight must
-/// not share a temporary file.
-fn temporary_path(path: &Path) -> PathBuf {
-    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let unique = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let mut name = path
-        .file_name()
-        .map(|n| n.to_os_string())
-        .unwrap_or_default();
-    name.push(format!(".{}.{unique}.tmp", std::process::id()));
-    path.with_file_name(name)
-}
-
-/// The writer process a temporary file of `temporary_path` names, if `name` is one.
-fn temporary_owner(name: &str) -> Option<u32> {
-    let stem = name.strip_suffix(".tmp")?;
-    let (rest, unique) = stem.rsplit_once('.')?;
-    unique.parse::<u64>().ok()?;
-    let (_, pid) = rest.rsplit_once('.')?;
-    pid.parse().ok()
-}
-
-/// Whether process `pid` still runs. Where that cannot be known, it is taken to run, so that
-/// nothing another writer may still be writing is ever removed.
-fn process_runs(pid: u32) -> bool {
-    let proc_root = Path::new("/proc");
-    if cfg!(target_os = "linux") && proc_root.join("self").exists() {
-        proc_root.join(pid.to_string()).exists()
-    } else {
-        true
-    }
-}
-
-/// Removes the temporary files in `dir` that a killed writer left behind, and only those. A
-/// temporary names the process writing it; one whose process still runs belongs to a writer
-/// at work in the same folder (another shard, another sink) and is left alone. Returns how
-/// many were removed.
-pub fn remove_stale_temporaries(dir: &Path) -> usize {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return 0;
-    };
-    let mut removed = 0;
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().to_string();
-        let Some(pid) = temporary_owner(&name) else {
-            continue;
-        };
-        if !process_runs(pid) && std::fs::remove_file(entry.path()).is_ok() {
-            removed += 1;
-        }
-    }
-    removed
 }
 
 /// Rewrites the file at `path` as `update` makes it from its current bytes (`None` when there
@@ -340,34 +284,6 @@ mod tests {
             .map(|e| e.unwrap().file_name())
             .collect();
         assert_eq!(names.len(), 1);
-    }
-
-    #[test]
-    fn only_temporaries_of_writers_that_are_gone_are_removed() {
-        let dir = tempfile::tempdir().unwrap();
-        // Ours (this process runs), a dead writer's (pid far above any running one), and
-        // files that only look like temporaries.
-        let ours = dir
-            .path()
-            .join(format!("a.npy.{}.0.tmp", std::process::id()));
-        let dead = dir.path().join("b.npy.4000000000.3.tmp");
-        let kept = ["c.npy", "notes.tmp", "d.npy.x.1.tmp", "e.npy.12.y.tmp"];
-        std::fs::write(&ours, b"in flight").unwrap();
-        std::fs::write(&dead, b"left by a kill").unwrap();
-        for name in kept {
-            std::fs::write(dir.path().join(name), b"").unwrap();
-        }
-        assert_eq!(temporary_owner("a.npy.17.0.tmp"), Some(17));
-        assert_eq!(temporary_owner("notes.tmp"), None);
-        let removed = remove_stale_temporaries(dir.path());
-        if cfg!(target_os = "linux") {
-            assert_eq!(removed, 1);
-            assert!(!dead.exists());
-        }
-        assert!(ours.exists(), "a running writer's temporary must stay");
-        for name in kept {
-            assert!(dir.path().join(name).exists(), "{name}");
-        }
     }
 
     #[test]

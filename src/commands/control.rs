@@ -334,7 +334,5 @@ fn draw(path: &Path, picture: &[Panel], horizon: f64) -> Result<()> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent)?;
     }
-    canvas
-        .save(path)
-        .with_context(|| format!("writing {}", path.display()))
+    Ok(bevworld_plot::save_png(path, &canvas)?)
 }

@@ -61,9 +61,7 @@ pub fn run(args: &InspectArgs) -> Result<ExitCode> {
         let points = project_cloud(&frame.lidar, camera);
         let name = camera.channel.name();
         let png = args.out.join(format!("{name}.png"));
-        draw_points(&camera.image, &points, args.max_depth)
-            .save(&png)
-            .with_context(|| format!("writing {}", png.display()))?;
+        bevworld_plot::save_png(&png, &draw_points(&camera.image, &points, args.max_depth))?;
         let csv = args.out.join(format!("{name}.csv"));
         bevworld_graph::io::write_atomic_now(&csv, to_csv(&points).as_bytes())
             .with_context(|| format!("writing {}", csv.display()))?;

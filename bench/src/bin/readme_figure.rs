@@ -98,8 +98,6 @@ fn main() {
         ],
     );
     replace(&mut figure, &lidar, i64::from(pair_w + 16), 0);
-    figure
-        .save(&out)
-        .unwrap_or_else(|e| panic!("{}: {e}", out.display()));
+    bevworld_plot::save_png(&out, &figure).unwrap_or_else(|e| panic!("{e}"));
     println!("figure written to {}", out.display());
 }

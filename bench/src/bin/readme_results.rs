@@ -33,8 +33,7 @@ fn main() {
         .map_err(|e| e.to_string())
         .and_then(|readme| with_table(&readme, &table, &path).map_err(|e| e.to_string()))
         .and_then(|updated| {
-            bevworld_graph::io::write_atomic_now(&path, updated.as_bytes())
-                .map_err(|e| e.to_string())
+            bevworld_atomic_file::write(&path, updated.as_bytes()).map_err(|e| e.to_string())
         });
     match updated {
         Ok(()) => println!("{} updated", path.display()),

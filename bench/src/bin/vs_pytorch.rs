@@ -510,8 +510,13 @@ fn report(dir: &Path) {
     });
     let results = bevworld_bench::results_dir();
     let file = results.join(format!("vs-pytorch-{kind}.json"));
-    std::fs::write(&file, serde_json::to_string_pretty(&record).expect("json"))
-        .expect("the machine's figures");
+    bevworld_atomic_file::write(
+        &file,
+        serde_json::to_string_pretty(&record)
+            .expect("json")
+            .as_bytes(),
+    )
+    .expect("the machine's figures");
     println!("wrote {}", file.display());
     write_page(&results);
 }
@@ -550,7 +555,8 @@ fn write_page(results: &Path) {
         common_notes(results),
         gemm_kernels(results)
     );
-    std::fs::write(results.join("vs-pytorch.md"), page).expect("vs-pytorch.md");
+    bevworld_atomic_file::write(&results.join("vs-pytorch.md"), page.as_bytes())
+        .expect("vs-pytorch.md");
     println!(
         "results written to {}",
         results.join("vs-pytorch.md").display()

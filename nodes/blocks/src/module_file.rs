@@ -84,19 +84,24 @@ pub fn first_non_finite<M: Module>(module: &M) -> Option<(String, usize)> {
     visitor.found
 }
 
-/// Writes `module`'s weights as burnpack (the file name is used as given). `what` names the
-/// model in errors ("tokenizer").
+/// Writes `module`'s weights as burnpack (the file name is used as given), whole or not at
+/// all: into a temporary beside `path` (`bevworld_atomic_file`), then renamed over it. `what`
+/// names the model in errors ("tokenizer").
 pub fn save_module<M: Module>(module: &M, what: &str, path: &Path) -> Result<(), ModuleFileError> {
-    let mut store = BurnpackStore::from_file(path)
+    let failed = |message: String| ModuleFileError::Io {
+        what: what.into(),
+        path: path.to_path_buf(),
+        message,
+    };
+    let temporary = bevworld_atomic_file::temporary_path(path);
+    let mut store = BurnpackStore::from_file(&temporary)
         .auto_extension(false)
         .overwrite(true);
-    module
-        .save_into(&mut store)
-        .map_err(|e| ModuleFileError::Io {
-            what: what.into(),
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })
+    if let Err(error) = module.save_into(&mut store) {
+        let _ = std::fs::remove_file(&temporary);
+        return Err(failed(error.to_string()));
+    }
+    std::fs::rename(&temporary, path).map_err(|e| failed(e.to_string()))
 }
 
 /// Loads every tensor of `module` (built for the config named `config`) from `path`; a missing

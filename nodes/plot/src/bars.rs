@@ -25,9 +25,16 @@ pub fn bars_svg(
     ensure_registered();
     let rows = items.len().max(1);
     let height = 90 + BAR * rows as u32;
-    let root = SVGBackend::new(path, (WIDTH, height)).into_drawing_area();
-    draw(&root, title, unit, items, log_scale).map_err(|e| PlotError::draw(path, e))?;
-    root.present().map_err(|e| PlotError::draw(path, e))
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (WIDTH, height)).into_drawing_area();
+        draw(&root, title, unit, items, log_scale).map_err(|e| PlotError::draw(path, e))?;
+        root.present().map_err(|e| PlotError::draw(path, e))?;
+    }
+    bevworld_atomic_file::write(path, svg.as_bytes()).map_err(|e| PlotError::Write {
+        path: path.to_path_buf(),
+        source: image::ImageError::IoError(e),
+    })
 }
 
 fn draw(

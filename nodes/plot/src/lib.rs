@@ -58,8 +58,23 @@ pub const PALETTE: [[u8; 3]; 7] = [
 fn write_png(path: &Path, buffer: Vec<u8>, width: u32, height: u32) -> Result<(), PlotError> {
     let image = image::RgbImage::from_raw(width, height, buffer)
         .ok_or_else(|| PlotError::draw(path, "the drawing buffer has the wrong size"))?;
-    image.save(path).map_err(|source| PlotError::Write {
+    save_png(path, &image)
+}
+
+/// Writes `image` as a PNG at `path`, whole or not at all (`bevworld_atomic_file`): every
+/// picture the workspace draws outside a graph goes through here.
+pub fn save_png(path: &Path, image: &image::RgbImage) -> Result<(), PlotError> {
+    let write_error = |source| PlotError::Write {
         path: path.to_path_buf(),
         source,
-    })
+    };
+    let mut bytes = Vec::new();
+    image
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .map_err(write_error)?;
+    bevworld_atomic_file::write(path, &bytes)
+        .map_err(|e| write_error(image::ImageError::IoError(e)))
 }

@@ -114,9 +114,7 @@ pub fn commit(
     let _ = std::fs::remove_dir_all(&target);
     std::fs::rename(&staged.dir, &target).map_err(|e| io_error(&target, e))?;
     let latest = root.join("latest");
-    let partial = root.join("latest.partial");
-    std::fs::write(&partial, &name).map_err(|e| io_error(&partial, e))?;
-    std::fs::rename(&partial, &latest).map_err(|e| io_error(&latest, e))?;
+    bevworld_atomic_file::write(&latest, name.as_bytes()).map_err(|e| io_error(&latest, e))?;
 
     let mut complete: Vec<PathBuf> = std::fs::read_dir(&root)
         .map_err(|e| io_error(&root, e))?

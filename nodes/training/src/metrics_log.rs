@@ -94,7 +94,8 @@ impl MetricsLog {
                 });
             }
         }
-        std::fs::write(&path, format!("{}\n{kept}", columns.join(","))).map_err(io)?;
+        bevworld_atomic_file::write(&path, format!("{}\n{kept}", columns.join(",")).as_bytes())
+            .map_err(io)?;
         Ok(Self {
             path,
             columns: columns.to_vec(),

@@ -48,10 +48,8 @@ impl LatentStatsFile {
             message: e,
         };
         let text = serde_json::to_string_pretty(self).map_err(|e| io(e.to_string()))?;
-        // Write then rename, so a crash never leaves a half-written file.
-        let partial = path.with_extension("json.tmp");
-        std::fs::write(&partial, text).map_err(|e| io(e.to_string()))?;
-        std::fs::rename(&partial, path).map_err(|e| io(e.to_string()))
+        // Whole or not at all: a crash never leaves a half-written file.
+        bevworld_atomic_file::write(path, text.as_bytes()).map_err(|e| io(e.to_string()))
     }
 
     pub fn load(path: &Path) -> Result<Self, StatsFileError> {

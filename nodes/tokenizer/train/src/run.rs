@@ -278,11 +278,12 @@ fn record_configs(
         .perceptual_weights
         .map(|p| std::path::absolute(&p).unwrap_or(p));
     let train_yaml = out.join("train.yaml");
-    std::fs::write(&train_yaml, recorded.to_yaml()?).map_err(io(&train_yaml))?;
+    bevworld_atomic_file::write(&train_yaml, recorded.to_yaml()?.as_bytes())
+        .map_err(io(&train_yaml))?;
     // The model config as trained (with any override), so `encode` and `render` build the
     // model these weights fit.
     let model_yaml = out.join("tokenizer.yaml");
-    std::fs::write(&model_yaml, model.to_yaml()?).map_err(io(&model_yaml))
+    bevworld_atomic_file::write(&model_yaml, model.to_yaml()?.as_bytes()).map_err(io(&model_yaml))
 }
 
 /// Runs `request` on `device`, reporting to `progress`.

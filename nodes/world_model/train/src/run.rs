@@ -330,7 +330,7 @@ pub fn train(
             flag: "the overrides",
             message,
         })?;
-        std::fs::write(&target, text).map_err(io(&target))
+        bevworld_atomic_file::write(&target, text.as_bytes()).map_err(io(&target))
     };
     written(
         "train-config.yaml",
