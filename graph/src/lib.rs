@@ -32,7 +32,7 @@ pub use metrics::{NodeReport, RunReport};
 pub use node::{Figures, Inputs, Node, Outputs, Role, Sink, Source, SourceInfo, Task};
 pub use pacing::{Pacing, PacingError};
 pub use policy::EdgePolicy;
-pub use port::{PortSpec, PortType};
+pub use port::{Port, PortSpec, PortType};
 pub use registry::{GraphRule, KindSpec, NodeKind, ParamError, Registry, RuleProblem};
 pub use runtime::{RunObserver, RunOptions, RunOutcome, StopHandle, run};
 pub use schema::{OnError, SyncMode};

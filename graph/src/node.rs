@@ -7,6 +7,7 @@ use std::sync::Arc;
 use crate::error::NodeError;
 use crate::message::{Header, Instant, Message};
 use crate::policy::{EdgeSender, SendOutcome};
+use crate::port::Port;
 
 /// What a source knows about its stream before it starts.
 #[derive(Clone, Debug, Default)]
@@ -157,15 +158,16 @@ impl Inputs {
     }
 
     /// The payload on `port`; an error when the port has no message in this group.
-    pub fn get<T: Any>(&self, port: &str) -> Result<&T, NodeError> {
-        self.message(port)
-            .ok_or_else(|| NodeError::fatal(format!("input '{port}' has no message")))?
+    pub fn get<T: Any>(&self, port: &Port<T>) -> Result<&T, NodeError> {
+        self.message(port.name)
+            .ok_or_else(|| NodeError::fatal(format!("input '{}' has no message", port.name)))?
             .get::<T>()
     }
 
-    pub fn shared<T: Any + Send + Sync>(&self, port: &str) -> Result<Arc<T>, NodeError> {
-        self.message(port)
-            .ok_or_else(|| NodeError::fatal(format!("input '{port}' has no message")))?
+    /// The payload on `port`, shared: for passing it on without a copy.
+    pub fn shared<T: Any + Send + Sync>(&self, port: &Port<T>) -> Result<Arc<T>, NodeError> {
+        self.message(port.name)
+            .ok_or_else(|| NodeError::fatal(format!("input '{}' has no message", port.name)))?
             .shared::<T>()
     }
 
@@ -226,8 +228,8 @@ impl Outputs {
     }
 
     /// Whether anything listens on `port`, so a node can skip work nobody consumes.
-    pub fn is_connected(&self, port: &str) -> bool {
-        self.index(port)
+    pub fn is_connected<T>(&self, port: &Port<T>) -> bool {
+        self.index(port.name)
             .map(|i| !self.edges[i].is_empty())
             .unwrap_or(false)
     }
@@ -251,17 +253,21 @@ impl Outputs {
         self.header = header;
     }
 
-    pub fn send<T: Any + Send + Sync>(&mut self, port: &str, payload: T) -> Result<(), NodeError> {
+    pub fn send<T: Any + Send + Sync>(
+        &mut self,
+        port: &Port<T>,
+        payload: T,
+    ) -> Result<(), NodeError> {
         self.send_shared(port, Arc::new(payload))
     }
 
     /// Sends a payload that is already shared; fan-out clones the `Arc`, never the data.
     pub fn send_shared<T: Any + Send + Sync>(
         &mut self,
-        port: &str,
+        port: &Port<T>,
         payload: Arc<T>,
     ) -> Result<(), NodeError> {
-        let index = self.index(port)?;
+        let index = self.index(port.name)?;
         let message = Message::from_shared(self.header, payload);
         self.sent += 1;
         if self.is_source {

@@ -1,7 +1,50 @@
 //! Typed, named ports. Validation compares `PortType`s so a mismatch is caught before any
-//! thread starts.
+//! thread starts; a node kind declares each port once, as a `Port<T>` constant, and uses that
+//! constant for its spec and for every read and send, so that a name is never written twice
+//! and a payload of another type does not compile.
 
 use std::any::{Any, TypeId};
+use std::marker::PhantomData;
+
+/// A port's name and the payload type it carries.
+pub struct Port<T> {
+    pub name: &'static str,
+    payload: PhantomData<fn() -> T>,
+}
+
+impl<T> Port<T> {
+    pub const fn new(name: &'static str) -> Self {
+        Self {
+            name,
+            payload: PhantomData,
+        }
+    }
+}
+
+impl<T: Any + Send + Sync> Port<T> {
+    /// The port as a kind declares it: a required input, or an output.
+    pub fn spec(&self) -> PortSpec {
+        PortSpec::new::<T>(self.name)
+    }
+
+    /// The port as an input that may be left unconnected.
+    pub fn optional(&self) -> PortSpec {
+        PortSpec::optional::<T>(self.name)
+    }
+}
+
+impl<T> Clone for Port<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<T> Copy for Port<T> {}
+
+impl<T> std::fmt::Debug for Port<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Port({})", self.name)
+    }
+}
 
 /// The Rust type a port carries, with a readable name for diagnostics.
 #[derive(Clone, Copy, Debug)]

@@ -234,7 +234,7 @@ fn check_listing_shows_resolved_defaults() {
 fn validation_builds_nothing_and_building_reports_at_the_parameter() {
     use std::sync::atomic::{AtomicUsize, Ordering};
 
-    use bevworld_graph::{KindSpec, Node, ParamError, PortSpec, validate};
+    use bevworld_graph::{KindSpec, Node, ParamError, validate};
     use serde::{Deserialize, Serialize};
 
     static BUILT: AtomicUsize = AtomicUsize::new(0);
@@ -247,8 +247,7 @@ fn validation_builds_nothing_and_building_reports_at_the_parameter() {
 
     let mut registry = registry();
     registry.register(
-        KindSpec::sink("loader", "loads a file when built")
-            .input(PortSpec::new::<common::Counted>("in")),
+        KindSpec::sink("loader", "loads a file when built").input(common::IN.spec()),
         |params: LoaderParams| {
             BUILT.fetch_add(1, Ordering::SeqCst);
             if params.weights == "broken.bpk" {

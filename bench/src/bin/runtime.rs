@@ -10,10 +10,14 @@ use std::time::Instant;
 
 use bevworld_bench::{markdown_table, results_dir, write_results};
 use bevworld_graph::{
-    Inputs, KindSpec, Node, NodeError, Outputs, PortSpec, Registry, RunOptions, Sink, Source,
+    Inputs, KindSpec, Node, NodeError, Outputs, Port, Registry, RunOptions, Sink, Source,
     SourceInfo, Task, resolve, run,
 };
 use serde::{Deserialize, Serialize};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const IN: Port<BenchMessage> = Port::new("in");
+const OUT: Port<BenchMessage> = Port::new("out");
 
 /// The message: a sequence number and, for large messages, a shared buffer.
 struct BenchMessage {
@@ -52,7 +56,7 @@ impl Source for BenchSource {
         out.set_time_of_validity(seq as i64);
         let blob =
             (!self.pool.is_empty()).then(|| Arc::clone(&self.pool[seq as usize % self.pool.len()]));
-        out.send("out", BenchMessage { seq, blob })?;
+        out.send(&OUT, BenchMessage { seq, blob })?;
         Ok(Some(seq as i64))
     }
 }
@@ -62,7 +66,7 @@ struct Pass;
 impl Task for Pass {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
         // Forward the same allocation: no copy of the payload, whatever its size.
-        out.send_shared("out", inputs.shared::<BenchMessage>("in")?)
+        out.send_shared(&OUT, inputs.shared(&IN)?)
     }
 }
 
@@ -85,7 +89,7 @@ struct Count {
 
 impl Sink for Count {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let message = inputs.get::<BenchMessage>("in")?;
+        let message = inputs.get(&IN)?;
         if message.seq != self.expected_next {
             return Err(NodeError::fatal(format!(
                 "out of order: {} after {}",
@@ -109,7 +113,7 @@ struct NoParams {}
 fn registry() -> Registry {
     let mut registry = Registry::new();
     registry.register(
-        KindSpec::source("bench_source", "counts").output(PortSpec::new::<BenchMessage>("out")),
+        KindSpec::source("bench_source", "counts").output(OUT.spec()),
         |p: SourceParams| {
             let pool: Vec<Arc<Vec<u8>>> = if p.payload_bytes > 0 {
                 pool().clone()
@@ -125,12 +129,12 @@ fn registry() -> Registry {
     );
     registry.register(
         KindSpec::task("bench_pass", "forwards")
-            .input(PortSpec::new::<BenchMessage>("in"))
-            .output(PortSpec::new::<BenchMessage>("out")),
+            .input(IN.spec())
+            .output(OUT.spec()),
         |_: NoParams| Ok(Node::Task(Box::new(Pass))),
     );
     registry.register(
-        KindSpec::sink("bench_count", "counts").input(PortSpec::new::<BenchMessage>("in")),
+        KindSpec::sink("bench_count", "counts").input(IN.spec()),
         |_: NoParams| Ok(Node::Sink(Box::new(Count { expected_next: 0 }))),
     );
     registry

@@ -9,12 +9,15 @@ use std::time::Instant;
 
 use bevworld_bench::{markdown_table, percentile, results_dir, write_results};
 use bevworld_graph::{
-    Inputs, KindSpec, Node, NodeError, PortSpec, Registry, RunOptions, Sink, resolve, run,
+    Inputs, KindSpec, Node, NodeError, Port, Registry, RunOptions, Sink, resolve, run,
 };
 use bevworld_sensors::synth::{SynthConfig, generate};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_types::SensorFrame;
 use serde::{Deserialize, Serialize};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FRAME: Port<SensorFrame> = Port::new("frame");
 
 #[derive(Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -25,7 +28,7 @@ struct FrameSink;
 
 impl Sink for FrameSink {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let frame = inputs.get::<SensorFrame>("frame")?;
+        let frame = inputs.get(&FRAME)?;
         if frame.lidar.is_empty() {
             return Err(NodeError::fatal("empty sweep"));
         }
@@ -37,8 +40,7 @@ fn registry() -> Registry {
     let mut registry = Registry::new();
     bevworld_sensors::register(&mut registry);
     registry.register(
-        KindSpec::sink("frame_sink", "consumes frames")
-            .input(PortSpec::new::<SensorFrame>("frame")),
+        KindSpec::sink("frame_sink", "consumes frames").input(FRAME.spec()),
         |_: NoParams| Ok(Node::Sink(Box::new(FrameSink))),
     );
     registry

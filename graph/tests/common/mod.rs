@@ -8,10 +8,17 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
 use bevworld_graph::{
-    Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Sink, Source,
-    SyncMode, Task,
+    Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Sink, Source, SyncMode,
+    Task,
 };
 use serde::{Deserialize, Serialize};
+
+// The test kinds' ports, each named once (`bevworld_graph::Port`).
+pub const IN: Port<Counted> = Port::new("in");
+pub const LEFT: Port<Counted> = Port::new("left");
+pub const RIGHT: Port<Counted> = Port::new("right");
+pub const TEXT: Port<String> = Port::new("text");
+pub const OUT: Port<Counted> = Port::new("out");
 
 /// A payload that counts how many of its kind are alive, to check memory stays bounded.
 pub struct Counted {
@@ -106,7 +113,7 @@ impl Source for CountSource {
         self.next += 1;
         let tov = self.params.offset_us + value as i64 * self.params.step_us;
         out.set_time_of_validity(tov);
-        out.send("out", Counted::new(value))?;
+        out.send(&OUT, Counted::new(value))?;
         Ok(Some(tov))
     }
 }
@@ -137,7 +144,7 @@ struct FaultyPass {
 
 impl Task for FaultyPass {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let item = inputs.shared::<Counted>("in")?;
+        let item = inputs.shared(&IN)?;
         let value = item.value;
         if self.params.sleep_us > 0 {
             std::thread::sleep(Duration::from_micros(self.params.sleep_us));
@@ -154,7 +161,7 @@ impl Task for FaultyPass {
         if self.params.reject_every.is_some_and(|n| value % n == 0) {
             return Err(NodeError::item(format!("item {value} is bad")));
         }
-        out.send_shared("out", item)
+        out.send_shared(&OUT, item)
     }
 }
 
@@ -175,7 +182,7 @@ struct RecordSink {
 
 impl Sink for RecordSink {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let payload = inputs.shared::<Counted>("in")?;
+        let payload = inputs.shared(&IN)?;
         let value = payload.value;
         if self.params.keep {
             kept_payloads()
@@ -203,9 +210,9 @@ struct Join;
 
 impl Task for Join {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let left = inputs.get::<Counted>("left")?.value;
-        let right = inputs.get::<Counted>("right")?.value;
-        out.send("out", Counted::new(left * 1000 + right))
+        let left = inputs.get(&LEFT)?.value;
+        let right = inputs.get(&RIGHT)?.value;
+        out.send(&OUT, Counted::new(left * 1000 + right))
     }
 }
 
@@ -265,12 +272,12 @@ struct Window {
 
 impl Task for Window {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        self.held.push(inputs.get::<Counted>("in")?.value);
+        self.held.push(inputs.get(&IN)?.value);
         self.received += 1;
         if self.held.len() == self.size {
             let sum = self.held.drain(..).sum();
             self.emitted += 1;
-            out.send("out", Counted::new(sum))?;
+            out.send(&OUT, Counted::new(sum))?;
         }
         Ok(())
     }
@@ -289,8 +296,8 @@ pub fn registry() -> Registry {
     let mut registry = Registry::new();
     registry.register(
         KindSpec::task("window", "sums every `size` items")
-            .input(PortSpec::new::<Counted>("in"))
-            .output(PortSpec::new::<Counted>("out")),
+            .input(IN.spec())
+            .output(OUT.spec()),
         |params: WindowParams| {
             Ok(Node::Task(Box::new(Window {
                 size: params.size,
@@ -301,29 +308,29 @@ pub fn registry() -> Registry {
         },
     );
     registry.register(
-        KindSpec::source("count", "counts up").output(PortSpec::new::<Counted>("out")),
+        KindSpec::source("count", "counts up").output(OUT.spec()),
         |params: CountParams| Ok(Node::Source(Box::new(CountSource { params, next: 0 }))),
     );
     registry.register(
         KindSpec::task("pass", "passes items on, with optional faults")
-            .input(PortSpec::new::<Counted>("in"))
-            .output(PortSpec::new::<Counted>("out")),
+            .input(IN.spec())
+            .output(OUT.spec()),
         |params: FaultParams| Ok(Node::Task(Box::new(FaultyPass { params }))),
     );
     registry.register(
-        KindSpec::sink("record", "records values").input(PortSpec::new::<Counted>("in")),
+        KindSpec::sink("record", "records values").input(IN.spec()),
         |params: RecordParams| Ok(Node::Sink(Box::new(RecordSink { params }))),
     );
     registry.register(
         KindSpec::task("join", "pairs two streams")
-            .input(PortSpec::new::<Counted>("left"))
-            .input(PortSpec::new::<Counted>("right"))
-            .output(PortSpec::new::<Counted>("out"))
+            .input(LEFT.spec())
+            .input(RIGHT.spec())
+            .output(OUT.spec())
             .sync(SyncMode::Aligned),
         |_: NoParams| Ok(Node::Task(Box::new(Join))),
     );
     registry.register_checked(
-        KindSpec::sink("text_sink", "takes text").input(PortSpec::new::<String>("text")),
+        KindSpec::sink("text_sink", "takes text").input(TEXT.spec()),
         |params: &TextParams| {
             if params.scale <= 0.0 {
                 return Err(ParamError::field(

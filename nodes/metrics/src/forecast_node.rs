@@ -25,7 +25,7 @@ use std::sync::Arc;
 use crate::agents::{AgentSums, SplitTruth, split_truth};
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink,
 };
 use bevworld_types::{
     BevFeatures, ForecastMethod, LatentStats, LatentStatsFile, RenderedFuture, SensorFrame,
@@ -35,6 +35,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::chamfer::{Roi, chamfer_in_roi};
 use crate::reconstruction_node::{score_images, score_lidar};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const RENDERED: Port<RenderedFuture> = Port::new("rendered");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -421,7 +424,7 @@ pub fn markdown_of(table: &serde_json::Value) -> String {
 
 impl Sink for ForecastMetrics {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let rendered = inputs.get::<RenderedFuture>("rendered")?;
+        let rendered = inputs.get(&RENDERED)?;
         let view = &rendered.view;
         let (horizon_s, ahead) = (view.horizon_s, view.frames_ahead);
         let Some(truth) = view.truth.clone() else {
@@ -615,7 +618,7 @@ pub fn register(registry: &mut Registry) {
             "forecast_metrics",
             "Chamfer, PSNR, SSIM and latent L1 of rendered forecasts per horizon and method, beside the raw-point baselines",
         )
-        .input(PortSpec::new::<RenderedFuture>("rendered")),
+        .input(RENDERED.spec()),
         |params: &ForecastMetricsParams| build(params).map(|_| ()),
         |params: ForecastMetricsParams| Ok(Node::Sink(Box::new(build(&params)?))),
     );

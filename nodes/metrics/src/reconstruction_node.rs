@@ -11,7 +11,7 @@
 use std::path::PathBuf;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink,
 };
 use bevworld_types::{ImageSet, PointCloud, SensorFrame};
 use image::imageops::FilterType;
@@ -19,6 +19,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::chamfer::{ChamferResult, Roi, chamfer_in_roi};
 use crate::image::{ImageMetricError, Planes, psnr, rgb_planes, ssim};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FRAME: Port<SensorFrame> = Port::new("frame");
+const IMAGES: Port<ImageSet> = Port::new("images");
+const LIDAR: Port<PointCloud> = Port::new("lidar");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -158,9 +163,9 @@ pub struct ReconstructionMetrics {
 
 impl Sink for ReconstructionMetrics {
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let frame = inputs.get::<SensorFrame>("frame")?;
-        let images = inputs.get::<ImageSet>("images")?;
-        let lidar = inputs.get::<PointCloud>("lidar")?;
+        let frame = inputs.get(&FRAME)?;
+        let images = inputs.get(&IMAGES)?;
+        let lidar = inputs.get(&LIDAR)?;
         let scores =
             score_frame(frame, images, lidar, &self.roi).map_err(|e| NodeError::item_from(&e))?;
         tracing::info!(
@@ -326,9 +331,9 @@ pub fn register(registry: &mut Registry) {
             "reconstruction_metrics",
             "camera PSNR/SSIM and LiDAR Chamfer of a rendered frame against its input frame",
         )
-        .input(PortSpec::new::<SensorFrame>("frame"))
-        .input(PortSpec::new::<ImageSet>("images"))
-        .input(PortSpec::new::<PointCloud>("lidar")),
+        .input(FRAME.spec())
+        .input(IMAGES.spec())
+        .input(LIDAR.spec()),
         |params: &ReconstructionMetricsParams| roi_of(params).map(|_| ()),
         |params: ReconstructionMetricsParams| {
             let roi = roi_of(&params)?;

@@ -1,9 +1,13 @@
 //! `bev_stats`: pillars to a dense BEV map of occupancy and height statistics, the exportable
 //! LiDAR feature until the tokenizer's latent takes its place on the same sink.
 
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, Outputs, PortSpec, Registry, Task};
+use bevworld_graph::{Inputs, KindSpec, Node, NodeError, Outputs, Port, Registry, Task};
 use bevworld_types::{BevFeatures, BevGrid, PILLAR_FEATURES, Pillars};
 use serde::{Deserialize, Serialize};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const PILLARS: Port<Pillars> = Port::new("pillars");
+const FEATURES: Port<BevFeatures> = Port::new("features");
 
 pub const CHANNELS: [&str; 5] = [
     "occupancy",
@@ -68,18 +72,15 @@ struct BevStatsNode;
 
 impl Task for BevStatsNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        out.send(
-            "features",
-            bev_statistics(inputs.get::<Pillars>("pillars")?),
-        )
+        out.send(&FEATURES, bev_statistics(inputs.get(&PILLARS)?))
     }
 }
 
 pub fn register(registry: &mut Registry) {
     registry.register(
         KindSpec::task("bev_stats", "pillars to a dense [5, H, W] BEV map: occupancy, log1p point count, max and mean height, mean intensity")
-            .input(PortSpec::new::<Pillars>("pillars"))
-            .output(PortSpec::new::<BevFeatures>("features")),
+            .input(PILLARS.spec())
+            .output(FEATURES.spec()),
         |_: NoParams| Ok(Node::Task(Box::new(BevStatsNode))),
     );
 }

@@ -1,12 +1,16 @@
 //! The `pillarize` node: `SensorFrame` in, `Pillars` out, with its drops in the node's metrics.
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
+    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{FrameMeta, PillarGrid, PillarStats, Pillars, SensorFrame};
 use serde::{Deserialize, Serialize};
 
 use crate::{Limits, Pillarizer};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FRAME: Port<SensorFrame> = Port::new("frame");
+const PILLARS: Port<Pillars> = Port::new("pillars");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -38,7 +42,7 @@ pub struct PillarizeNode {
 
 impl Task for PillarizeNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let frame = inputs.get::<SensorFrame>("frame")?;
+        let frame = inputs.get(&FRAME)?;
         crate::ego_points_into(&frame.lidar, &mut self.points);
         let mut pillars: Pillars = self.pillarizer.run(&self.points);
         pillars.meta = FrameMeta {
@@ -58,7 +62,7 @@ impl Task for PillarizeNode {
         self.totals.points_in_dropped_pillars += s.points_in_dropped_pillars;
         self.frames += 1;
         self.pillars += pillars.len() as u64;
-        out.send("pillars", pillars)
+        out.send(&PILLARS, pillars)
     }
 
     fn report(&self) -> Figures {
@@ -90,8 +94,8 @@ impl Task for PillarizeNode {
 pub fn register(registry: &mut Registry) {
     registry.register_checked(
         KindSpec::task("pillarize", "groups a sweep's points (ego frame) into the non-empty PointPillars pillars of a BEV grid")
-            .input(PortSpec::new::<SensorFrame>("frame"))
-            .output(PortSpec::new::<Pillars>("pillars")),
+            .input(FRAME.spec())
+            .output(PILLARS.spec()),
         |params: &PillarizeParams| {
             params.grid.validate().map_err(|error| ParamError::field("grid", error.to_string()).with_accepted("finite ranges [min, max) that pillar_size divides"))?;
             if params.max_points_per_pillar == 0 || params.max_points_per_pillar > 4096 {

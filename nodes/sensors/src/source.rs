@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use bevworld_graph::io::{spawn_io, wait};
 use bevworld_graph::{
-    Figures, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Source, SourceInfo,
+    Figures, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Source, SourceInfo,
 };
 use bevworld_types::{ImageSet, PointCloud, SensorFrame};
 use serde::{Deserialize, Serialize};
@@ -15,6 +15,11 @@ use tokio::task::JoinHandle;
 
 use crate::dataset::{Dataset, DatasetFormat, DatasetOptions, FetchedFrame};
 use crate::lidar_file::NonFinitePolicy;
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FRAME: Port<SensorFrame> = Port::new("frame");
+const IMAGES: Port<ImageSet> = Port::new("images");
+const LIDAR: Port<PointCloud> = Port::new("lidar");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -335,13 +340,13 @@ impl Source for DatasetSource {
         self.non_finite_points_dropped += frame.lidar.dropped_non_finite as u64;
         let time_of_validity = frame.time_of_validity_us;
         out.set_time_of_validity(time_of_validity);
-        if out.is_connected("images") {
-            out.send("images", frame.image_set())?;
+        if out.is_connected(&IMAGES) {
+            out.send(&IMAGES, frame.image_set())?;
         }
-        if out.is_connected("lidar") {
-            out.send_shared::<PointCloud>("lidar", Arc::clone(&frame.lidar))?;
+        if out.is_connected(&LIDAR) {
+            out.send_shared(&LIDAR, Arc::clone(&frame.lidar))?;
         }
-        out.send("frame", frame)?;
+        out.send(&FRAME, frame)?;
         Ok(Some(time_of_validity))
     }
 
@@ -367,9 +372,9 @@ pub fn register(registry: &mut Registry) {
             "dataset_source",
             "replays a nuScenes-layout, synthetic or KITTI odometry dataset as sensor frames",
         )
-        .output(PortSpec::new::<SensorFrame>("frame"))
-        .output(PortSpec::new::<ImageSet>("images"))
-        .output(PortSpec::new::<PointCloud>("lidar")),
+        .output(FRAME.spec())
+        .output(IMAGES.spec())
+        .output(LIDAR.spec()),
         DatasetSourceParams::check,
         |params: DatasetSourceParams| Ok(Node::Source(Box::new(DatasetSource::new(params)?))),
     );

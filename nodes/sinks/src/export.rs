@@ -22,13 +22,16 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink,
 };
 use bevworld_types::BevFeatures;
 use serde::{Deserialize, Serialize};
 
 use crate::npy::npy_f32;
 use crate::writes::Writes;
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FEATURES: Port<BevFeatures> = Port::new("features");
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -155,7 +158,7 @@ impl Sink for ExportSink {
     }
 
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let features = inputs.get::<BevFeatures>("features")?;
+        let features = inputs.get(&FEATURES)?;
         // Files and index entries are keyed by the frame token: sweeps share a sample token.
         let token = &features.meta.frame_token;
         if token.is_empty() {
@@ -273,7 +276,7 @@ impl Sink for ExportSink {
 pub fn register(registry: &mut Registry) {
     registry.register_checked(
         KindSpec::sink("export_features", "writes BEV features per frame (.npy or .safetensors) with a dataset index.json; resumable")
-            .input(PortSpec::new::<BevFeatures>("features")),
+            .input(FEATURES.spec()),
         |params: &ExportParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));

@@ -27,7 +27,7 @@ use std::sync::Arc;
 
 use bevworld_graph::io::{FolderClaim, safe_file_name};
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink,
+    Figures, Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink,
 };
 use bevworld_plot::{Cloud, caption, top_down};
 use bevworld_types::{
@@ -39,6 +39,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::ply::{PlyEncoding, PlyPoint, encode_ply};
 use crate::writes::Writes;
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const RENDERED: Port<RenderedFuture> = Port::new("rendered");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -277,7 +280,7 @@ impl Sink for ForecastSink {
     }
 
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let rendered = inputs.get::<RenderedFuture>("rendered")?;
+        let rendered = inputs.get(&RENDERED)?;
         let view = &rendered.view;
         self.views += 1;
         if view.method != self.method {
@@ -413,7 +416,7 @@ pub fn register(registry: &mut Registry) {
             "forecast_sink",
             "a forecast's renders as PNG and PLY per context and horizon, with strips per camera and top-down sweeps",
         )
-        .input(PortSpec::new::<RenderedFuture>("rendered")),
+        .input(RENDERED.spec()),
         |params: ForecastSinkParams| {
             if !(params.top_down_half_extent_m.is_finite() && params.top_down_half_extent_m > 0.0) {
                 return Err(ParamError::field("top_down_half_extent_m", "must be a number > 0"));

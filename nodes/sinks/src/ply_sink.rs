@@ -3,13 +3,16 @@
 use std::path::PathBuf;
 
 use bevworld_graph::io::FolderClaim;
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink};
+use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink};
 use bevworld_types::PointCloud;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::ply::{PlyEncoding, PlyPoint, encode_ply};
 use crate::writes::Writes;
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const CLOUD: Port<PointCloud> = Port::new("cloud");
 
 /// Which coordinates the points are written in.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
@@ -53,7 +56,7 @@ impl Sink for PlySink {
     }
 
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let cloud = inputs.get::<PointCloud>("cloud")?;
+        let cloud = inputs.get(&CLOUD)?;
         let frame = inputs.header().map(|h| h.seq).unwrap_or(0);
         let points: Vec<PlyPoint> = match self.params.frame {
             CloudFrame::Sensor => cloud
@@ -104,7 +107,7 @@ pub fn register(registry: &mut Registry) {
             "ply_sink",
             "writes point clouds as PLY (x y z intensity), binary little-endian or ASCII",
         )
-        .input(PortSpec::new::<PointCloud>("cloud")),
+        .input(CLOUD.spec()),
         |params: &PlySinkParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));

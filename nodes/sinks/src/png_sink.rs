@@ -5,12 +5,15 @@ use std::io::Cursor;
 use std::path::PathBuf;
 
 use bevworld_graph::io::{FolderClaim, safe_file_name};
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, PortSpec, Registry, Sink};
+use bevworld_graph::{Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink};
 use bevworld_types::ImageSet;
 use image::ImageFormat;
 use serde::{Deserialize, Serialize};
 
 use crate::writes::Writes;
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const IMAGES: Port<ImageSet> = Port::new("images");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -36,7 +39,7 @@ impl Sink for PngSink {
     }
 
     fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
-        let set = inputs.get::<ImageSet>("images")?;
+        let set = inputs.get(&IMAGES)?;
         let frame = inputs.header().map(|h| h.seq).unwrap_or(0);
         let folder = self.params.out.join(format!("{frame:06}"));
         for named in &set.images {
@@ -69,7 +72,7 @@ pub fn register(registry: &mut Registry) {
             "png_sink",
             "writes images as 8-bit RGB PNG, one folder per frame",
         )
-        .input(PortSpec::new::<ImageSet>("images")),
+        .input(IMAGES.spec()),
         |params: &PngSinkParams| {
             if params.out.as_os_str().is_empty() {
                 return Err(ParamError::field("out", "is empty").with_accepted("an output folder"));

@@ -1,7 +1,7 @@
 //! `encode`: a sensor frame and its pillars in, the 4-channel BEV latent out (and, when
 //! something listens, the fused BEV feature before compression).
 
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, Outputs, PortSpec, Registry, Task};
+use bevworld_graph::{Inputs, KindSpec, Node, NodeError, Outputs, Port, Registry, Task};
 use bevworld_types::{BevFeatures, BevGrid, FrameMeta, Pillars, SensorFrame};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -9,6 +9,12 @@ use serde::{Deserialize, Serialize};
 use crate::config::TokenizerConfig;
 use crate::frame_input::FrameInputs;
 use crate::nodes::loaded_model::{LoadedModel, ModelParams};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FRAME: Port<SensorFrame> = Port::new("frame");
+const PILLARS: Port<Pillars> = Port::new("pillars");
+const FUSED: Port<BevFeatures> = Port::new("fused");
+const LATENT: Port<BevFeatures> = Port::new("latent");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -59,8 +65,8 @@ impl EncodeNode {
 
 impl Task for EncodeNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let frame = inputs.get::<SensorFrame>("frame")?;
-        let pillars = inputs.get::<Pillars>("pillars")?;
+        let frame = inputs.get(&FRAME)?;
+        let pillars = inputs.get(&PILLARS)?;
         if pillars.meta.frame_token != frame.frame_token {
             return Err(NodeError::item(format!(
                 "the pillars belong to frame {}, not to frame {}: connect `pillars` to a pillarize node fed by the same source",
@@ -73,9 +79,9 @@ impl Task for EncodeNode {
             .map_err(|error| NodeError::item(error.to_string()))?;
         let encoded = self.loaded.model.encode(input);
         let meta = &pillars.meta;
-        if out.is_connected("fused") {
+        if out.is_connected(&FUSED) {
             let fused = self.features(meta, encoded.fused, "fused")?;
-            out.send("fused", fused)?;
+            out.send(&FUSED, fused)?;
         }
         let latent = self.features(meta, encoded.latent, "latent")?;
         if latent.data.iter().any(|v| !v.is_finite()) {
@@ -84,7 +90,7 @@ impl Task for EncodeNode {
                 frame.frame_token
             )));
         }
-        out.send("latent", latent)
+        out.send(&LATENT, latent)
     }
 }
 
@@ -94,10 +100,10 @@ pub fn register(registry: &mut Registry) {
             "encode",
             "the BEV tokenizer's encoder: six cameras and the sweep's pillars to the C' x h x w latent",
         )
-        .input(PortSpec::new::<SensorFrame>("frame"))
-        .input(PortSpec::new::<Pillars>("pillars"))
-        .output(PortSpec::new::<BevFeatures>("latent"))
-        .output(PortSpec::new::<BevFeatures>("fused")),
+        .input(FRAME.spec())
+        .input(PILLARS.spec())
+        .output(LATENT.spec())
+        .output(FUSED.spec()),
         |params: &EncodeParams| params.model.check(),
         |params: EncodeParams| {
             let loaded = params.model.load()?;

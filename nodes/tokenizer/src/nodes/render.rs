@@ -14,7 +14,7 @@
 use std::sync::Arc;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
+    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{
     BevFeatures, FutureView, ImageSet, LidarPoint, NamedImage, PointCloud, RenderedFuture,
@@ -29,6 +29,15 @@ use crate::modality::Modality;
 use crate::nodes::loaded_model::{LoadedModel, ModelParams};
 use crate::render::rays::Rays;
 use crate::render::{OccupancyGrid, RenderedRays, SkipOptions, VoxelScene, camera_images};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FRAME: Port<SensorFrame> = Port::new("frame");
+const FUTURE_IN: Port<FutureView> = Port::new("future");
+const LATENT: Port<BevFeatures> = Port::new("latent");
+const FUTURE_OUT: Port<RenderedFuture> = Port::new("future");
+const IMAGES: Port<ImageSet> = Port::new("images");
+const LIDAR: Port<PointCloud> = Port::new("lidar");
+const SIDE_BY_SIDE: Port<ImageSet> = Port::new("side_by_side");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -123,8 +132,8 @@ impl RenderNode {
     /// (ablation) model for the other one is an error: that half of its decoder never trained.
     fn wanted(&self, out: &Outputs) -> Result<(bool, bool), NodeError> {
         let config = &self.loaded.config;
-        let images = out.is_connected("images") || out.is_connected("side_by_side");
-        let lidar = out.is_connected("lidar");
+        let images = out.is_connected(&IMAGES) || out.is_connected(&SIDE_BY_SIDE);
+        let lidar = out.is_connected(&LIDAR);
         for (wanted, modality, ports) in [
             (images, Modality::Camera, "`images`/`side_by_side`"),
             (lidar, Modality::Lidar, "`lidar`"),
@@ -157,7 +166,7 @@ impl RenderNode {
     ) -> Result<(), NodeError> {
         let images = self.images(frame, camera, rays)?;
         let [h, w] = self.loaded.config.image_size;
-        if out.is_connected("side_by_side") {
+        if out.is_connected(&SIDE_BY_SIDE) {
             let mut side_by_side = ImageSet::default();
             for (input, reconstruction) in frame.cameras.iter().zip(&images.images) {
                 let original = planes_to_image(&image_planes(&input.image, w, h), w, h);
@@ -169,9 +178,9 @@ impl RenderNode {
                     image: Arc::new(pair),
                 });
             }
-            out.send("side_by_side", side_by_side)?;
+            out.send(&SIDE_BY_SIDE, side_by_side)?;
         }
-        out.send("images", images)
+        out.send(&IMAGES, images)
     }
 }
 
@@ -298,17 +307,17 @@ impl RenderNode {
         let lidar = lidar.map(|lidar| rendered_sweep(&view.rays, &lidar, &rays));
         let render_ms = started.elapsed().as_secs_f64() * 1e3;
         if let Some(images) = &images
-            && out.is_connected("images")
+            && out.is_connected(&IMAGES)
         {
-            out.send("images", images.clone())?;
+            out.send(&IMAGES, images.clone())?;
         }
         if let Some(lidar) = &lidar
-            && out.is_connected("lidar")
+            && out.is_connected(&LIDAR)
         {
-            out.send("lidar", lidar.clone())?;
+            out.send(&LIDAR, lidar.clone())?;
         }
         out.send(
-            "future",
+            &FUTURE_OUT,
             RenderedFuture {
                 view,
                 images,
@@ -321,24 +330,24 @@ impl RenderNode {
 
 impl Task for RenderNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        if inputs.message("future").is_some() {
-            let view = inputs.shared::<FutureView>("future")?;
+        if inputs.message(FUTURE_IN.name).is_some() {
+            let view = inputs.shared(&FUTURE_IN)?;
             return self.render_future(view, out);
         }
         let (want_images, want_lidar) = self.wanted(out)?;
-        let (Some(_), Some(_)) = (inputs.message("latent"), inputs.message("frame")) else {
+        let (Some(_), Some(_)) = (inputs.message(LATENT.name), inputs.message(FRAME.name)) else {
             return Err(NodeError::fatal(
                 "render: connect both `latent` and `frame` (a reconstruction), or `future` (a forecast)",
             ));
         };
-        let latent = inputs.get::<BevFeatures>("latent")?;
-        let frame = inputs.get::<SensorFrame>("frame")?;
+        let latent = inputs.get(&LATENT)?;
+        let frame = inputs.get(&FRAME)?;
         let (camera, lidar, rays) = self.render(latent, frame, want_images, want_lidar)?;
         if let Some(camera) = camera {
             self.send_images(frame, &camera, &rays, out)?;
         }
         if let Some(lidar) = lidar {
-            out.send("lidar", rendered_sweep(frame, &lidar, &rays))?;
+            out.send(&LIDAR, rendered_sweep(frame, &lidar, &rays))?;
         }
         Ok(())
     }
@@ -382,13 +391,13 @@ pub fn register(registry: &mut Registry) {
             "render",
             "the BEV tokenizer's decoder: a latent to voxels, ray-cast into the frame's six cameras and LiDAR beams",
         )
-        .input(PortSpec::optional::<BevFeatures>("latent"))
-        .input(PortSpec::optional::<SensorFrame>("frame"))
-        .input(PortSpec::optional::<FutureView>("future"))
-        .output(PortSpec::new::<ImageSet>("images"))
-        .output(PortSpec::new::<PointCloud>("lidar"))
-        .output(PortSpec::new::<ImageSet>("side_by_side"))
-        .output(PortSpec::new::<RenderedFuture>("future")),
+        .input(LATENT.optional())
+        .input(FRAME.optional())
+        .input(FUTURE_IN.optional())
+        .output(IMAGES.spec())
+        .output(LIDAR.spec())
+        .output(SIDE_BY_SIDE.spec())
+        .output(FUTURE_OUT.spec()),
         |params: &RenderParams| {
             if let Some(options) = &params.skipping {
                 let problems = options.problems();

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
+    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{
     BevFeatures, EgoAction, Forecast, ForecastHorizon, ForecastMethod, FrameMeta, LatentStats,
@@ -35,6 +35,10 @@ use crate::nodes::model_params::WorldModelParams;
 use crate::rollout::Rollout;
 use crate::shrink::ResidualShrink;
 use crate::weights::load_weights;
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const WINDOW: Port<LatentWindow> = Port::new("window");
+const FORECAST: Port<Forecast> = Port::new("forecast");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -422,7 +426,7 @@ impl DiffusionRolloutNode {
 
 impl Task for DiffusionRolloutNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let window = inputs.get::<LatentWindow>("window")?;
+        let window = inputs.get(&WINDOW)?;
         let forecast = self.forecast(window).map_err(NodeError::item)?;
         if forecast
             .future_actions
@@ -439,7 +443,7 @@ impl Task for DiffusionRolloutNode {
         }
         self.forecasts += 1;
         self.sampling_ms += forecast.sampling_ms;
-        out.send("forecast", forecast)
+        out.send(&FORECAST, forecast)
     }
 
     fn report(&self) -> Figures {
@@ -493,8 +497,8 @@ pub fn register(registry: &mut Registry) {
             "diffusion_rollout",
             "the world model: a window of past latents to the future latents at the requested horizons, by DDIM",
         )
-        .input(PortSpec::new::<LatentWindow>("window"))
-        .output(PortSpec::new::<Forecast>("forecast")),
+        .input(WINDOW.spec())
+        .output(FORECAST.spec()),
         |params: &DiffusionRolloutParams| plan(params).map(|_| ()),
         |params: DiffusionRolloutParams| Ok(Node::Task(Box::new(build(&params)?))),
     );

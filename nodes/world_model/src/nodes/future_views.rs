@@ -17,13 +17,18 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, SyncMode,
-    Task,
+    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, SyncMode, Task,
 };
 use bevworld_types::{
     BevFeatures, Forecast, ForecastMethod, FutureView, SensorFrame, virtual_frame,
 };
 use serde::{Deserialize, Serialize};
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const FORECAST: Port<Forecast> = Port::new("forecast");
+const FRAME: Port<SensorFrame> = Port::new("frame");
+const LATENT: Port<BevFeatures> = Port::new("latent");
+const VIEW: Port<FutureView> = Port::new("view");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -310,7 +315,7 @@ impl FutureViewsNode {
     fn send(views: Vec<FutureView>, out: &mut Outputs) -> Result<(), NodeError> {
         for view in views {
             out.set_time_of_validity(view.latent.meta.time_of_validity_us);
-            out.send("view", view)?;
+            out.send(&VIEW, view)?;
         }
         Ok(())
     }
@@ -318,17 +323,14 @@ impl FutureViewsNode {
 
 impl Task for FutureViewsNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        if inputs.message("frame").is_some() {
-            self.views
-                .push_frame(inputs.shared::<SensorFrame>("frame")?);
+        if inputs.message(FRAME.name).is_some() {
+            self.views.push_frame(inputs.shared(&FRAME)?);
         }
-        if inputs.message("latent").is_some() {
-            self.views
-                .push_latent(inputs.shared::<BevFeatures>("latent")?);
+        if inputs.message(LATENT.name).is_some() {
+            self.views.push_latent(inputs.shared(&LATENT)?);
         }
-        if inputs.message("forecast").is_some() {
-            self.views
-                .push_forecast(inputs.get::<Forecast>("forecast")?.clone());
+        if inputs.message(FORECAST.name).is_some() {
+            self.views.push_forecast(inputs.get(&FORECAST)?.clone());
         }
         Self::send(self.views.ready(false), out)
     }
@@ -402,10 +404,10 @@ pub fn register(registry: &mut Registry) {
             "future_views",
             "each forecast latent with the rays to render it along (the logged future frame, or the rig at the predicted pose) and its truth",
         )
-        .input(PortSpec::new::<Forecast>("forecast"))
-        .input(PortSpec::new::<SensorFrame>("frame"))
-        .input(PortSpec::optional::<BevFeatures>("latent"))
-        .output(PortSpec::new::<FutureView>("view"))
+        .input(FORECAST.spec())
+        .input(FRAME.spec())
+        .input(LATENT.optional())
+        .output(VIEW.spec())
         .sync(SyncMode::Any),
         |params: &FutureViewsParams| methods(params).map(|_| ()),
         |params: FutureViewsParams| {

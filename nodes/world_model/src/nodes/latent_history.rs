@@ -21,12 +21,16 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, PortSpec, Registry, Task,
+    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{BevFeatures, EgoAction, LatentWindow, LoggedPose};
 use serde::{Deserialize, Serialize};
 
 use crate::nodes::model_params::WorldModelParams;
+
+// The node's ports, each named once (`bevworld_graph::Port`).
+const LATENT: Port<BevFeatures> = Port::new("latent");
+const WINDOW: Port<LatentWindow> = Port::new("window");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -298,10 +302,10 @@ pub struct LatentHistoryNode {
 
 impl Task for LatentHistoryNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
-        let latent = inputs.shared::<BevFeatures>("latent")?;
+        let latent = inputs.shared(&LATENT)?;
         for window in self.history.push(latent).map_err(NodeError::item)? {
             out.set_time_of_validity(window.current().map_or(0, |c| c.meta.time_of_validity_us));
-            out.send("window", window)?;
+            out.send(&WINDOW, window)?;
         }
         Ok(())
     }
@@ -309,7 +313,7 @@ impl Task for LatentHistoryNode {
     fn finish(&mut self, out: &mut Outputs) -> Result<(), NodeError> {
         for window in self.history.flush() {
             out.set_time_of_validity(window.current().map_or(0, |c| c.meta.time_of_validity_us));
-            out.send("window", window)?;
+            out.send(&WINDOW, window)?;
         }
         Ok(())
     }
@@ -371,8 +375,8 @@ pub fn register(registry: &mut Registry) {
             "latent_history",
             "the last latents of the scene at the world model's stride; one window per new frame once full",
         )
-        .input(PortSpec::new::<BevFeatures>("latent"))
-        .output(PortSpec::new::<LatentWindow>("window")),
+        .input(LATENT.spec())
+        .output(WINDOW.spec()),
         |params: &LatentHistoryParams| check(params).map(|_| ()),
         |params: LatentHistoryParams| {
             let shape = check(&params)?;
