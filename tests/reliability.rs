@@ -404,6 +404,17 @@ fn refusals_say_the_rule_and_exit_2_before_any_work() {
         (
             vec![
                 "eval".into(),
+                "control".into(),
+                "--data".into(),
+                path(dir.path()),
+                "--horizon".into(),
+                "3.5".into(),
+            ],
+            "from 0.5 s on, to 3 s",
+        ),
+        (
+            vec![
+                "eval".into(),
                 "forecast".into(),
                 "--data".into(),
                 path(dir.path()),

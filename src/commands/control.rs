@@ -128,11 +128,18 @@ fn context(
 }
 
 pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
-    let ahead = (args.horizon / 0.5).round();
-    if !(ahead >= 1.0 && (ahead * 0.5 - args.horizon).abs() <= 1e-9) {
+    // The model's own facts: its frame interval, how far it forecasts, its condition frames.
+    let model = crate::commands::graph_run::world_model_of(&args.graph)?;
+    let interval = model.frame_interval_s;
+    let ahead = (args.horizon / interval).round();
+    if !(ahead >= 1.0
+        && ahead <= model.future_frames as f64
+        && (ahead * interval - args.horizon).abs() <= 1e-9)
+    {
         return Err(crate::commands::refuse(format!(
-            "--horizon {}: forecasts are compared at a horizon after the context, one of the world model's future frames: a multiple of its 0.5 s frame interval from 0.5 s on (0.5, 1, ..., 3)",
-            args.horizon
+            "--horizon {}: forecasts are compared at a horizon after the context, one of the world model's future frames: a multiple of its {interval} s frame interval from {interval} s on, to {} s",
+            args.horizon,
+            interval * model.future_frames as f64
         )));
     }
     let ahead = ahead as usize;
@@ -153,8 +160,9 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
             args.data.display()
         );
     }
-    // The history needs the model's condition frames and one more before them.
-    let history = 3;
+    // Frames read before the context frame: its other condition frames, and one before them
+    // for the first action; as many as the model's condition frames.
+    let history = model.context_frames;
     let roi = Roi::FOUR_D_OCC;
     let mut rows: BTreeMap<Manoeuvre, (usize, usize, f64, usize)> = BTreeMap::new();
     let mut picture: Option<Vec<Panel>> = None;

@@ -51,6 +51,32 @@ pub fn run_graph(
     Ok((params, outcome.report))
 }
 
+/// The world model a graph's `diffusion_rollout` node loads, read from its config: the facts a
+/// command needs of the model (its condition frames, its frame interval, how far it forecasts)
+/// come from there, never from a constant of the command's.
+pub fn world_model_of(graph: &Path) -> Result<bevworld_world_model::WorldModelConfig> {
+    let validated = match bevworld_graph::load(graph, &registry::registry(), &[]) {
+        Ok(validated) => validated,
+        Err(diagnostics) => return Err(Refused::Graph(diagnostics).into()),
+    };
+    let model = validated
+        .spec
+        .nodes
+        .iter()
+        .find(|n| n.kind.name == "diffusion_rollout")
+        .and_then(|n| n.params.get("model"))
+        .and_then(serde_json::Value::as_str)
+        .map(Path::new)
+        .with_context(|| {
+            format!(
+                "{}: no diffusion_rollout node names the world model",
+                graph.display()
+            )
+        })?;
+    bevworld_world_model::WorldModelConfig::from_yaml_file(model)
+        .with_context(|| format!("the world model of {}", graph.display()))
+}
+
 /// Runs the graph, whose sink writes the JSON file `report`, and returns the resolved
 /// parameters and that file parsed. An old `report` is removed first, so that a run that
 /// writes none is an error, not a stale table.
