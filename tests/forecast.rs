@@ -39,6 +39,16 @@ fn synth(dir: &Path, seed: u64, seconds: f64) -> PathBuf {
     data
 }
 
+/// The context folders a forecast run wrote into `out`.
+fn context_folders(out: &Path) -> Vec<PathBuf> {
+    std::fs::read_dir(out)
+        .expect("out")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .collect()
+}
+
 /// `bevworld run configs/graphs/forecast.yaml` on `data`, writing into `out`.
 fn run_forecast(data: &Path, out: &Path, set: &[&str]) -> std::process::Output {
     let mut args = vec![
@@ -145,12 +155,7 @@ fn eval_forecast_scores_every_context_and_writes_every_file_it_promises() {
     assert!(dir.path().join("chamfer.png").is_file());
 
     // Files: every context, every horizon; the truth only where the log reaches.
-    let contexts: Vec<PathBuf> = std::fs::read_dir(&out)
-        .expect("out")
-        .filter_map(Result::ok)
-        .map(|e| e.path())
-        .filter(|p| p.is_dir())
-        .collect();
+    let contexts = context_folders(&out);
     assert_eq!(contexts.len(), 8, "{contexts:?}");
     let mut with_truth = [0usize; 2];
     for context in &contexts {
@@ -410,12 +415,7 @@ fn the_live_graph_forecasts_while_the_log_replays_in_real_time() {
         assert_eq!(n["drops"], dropped, "{id}: {report}");
     }
     // Every forecast made is written, at every horizon.
-    let contexts: Vec<PathBuf> = std::fs::read_dir(&out)
-        .expect("out")
-        .filter_map(Result::ok)
-        .map(|e| e.path())
-        .filter(|p| p.is_dir())
-        .collect();
+    let contexts = context_folders(&out);
     assert_eq!(contexts.len() as u64, forecasts);
     for context in &contexts {
         for horizon in ["+0.5s", "+1s", "+3s"] {

@@ -49,6 +49,21 @@ pub struct SplitTruth {
     pub vehicles: Vec<ObjectBox>,
 }
 
+impl SplitTruth {
+    /// Each point classed by the vehicles' boxes (ego frame), with the box margin and lift.
+    pub fn new(points: Vec<[f64; 3]>, vehicles: Vec<ObjectBox>) -> Self {
+        let classes = points
+            .iter()
+            .map(|p| classify_point(&vehicles, DVec3::from_array(*p), BOX_MARGIN_M, BOX_LIFT_M))
+            .collect();
+        Self {
+            points,
+            classes,
+            vehicles,
+        }
+    }
+}
+
 /// Splits a logged frame by its annotated boxes. A frame without boxes is all static.
 pub fn split_truth(frame: &SensorFrame, roi: &Roi) -> SplitTruth {
     let ego_from_global = frame.lidar.global_from_ego.inverse();
@@ -65,15 +80,7 @@ pub fn split_truth(frame: &SensorFrame, roi: &Roi) -> SplitTruth {
         .map(|p| [p[0].into(), p[1].into(), p[2].into()])
         .filter(|p| roi.contains(p))
         .collect();
-    let classes = points
-        .iter()
-        .map(|p| classify_point(&vehicles, DVec3::from_array(*p), BOX_MARGIN_M, BOX_LIFT_M))
-        .collect();
-    SplitTruth {
-        points,
-        classes,
-        vehicles,
-    }
+    SplitTruth::new(points, vehicles)
 }
 
 /// The sums of one class.
@@ -314,15 +321,7 @@ mod tests {
             [34.0, 0.0, 0.0],
             [10.0, 0.0, 0.02],
         ];
-        let classes = points
-            .iter()
-            .map(|p| classify_point(&vehicles, DVec3::from_array(*p), BOX_MARGIN_M, BOX_LIFT_M))
-            .collect();
-        SplitTruth {
-            points,
-            classes,
-            vehicles,
-        }
+        SplitTruth::new(points, vehicles)
     }
 
     #[test]
