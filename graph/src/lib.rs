@@ -9,12 +9,15 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod align;
+pub mod collect;
 pub mod diagnostic;
 pub mod dot;
 pub mod error;
+pub mod interface;
 pub mod io;
 pub mod message;
 pub mod metrics;
+pub mod models;
 pub mod node;
 pub mod pacing;
 pub mod policy;
@@ -25,10 +28,13 @@ pub mod schema;
 pub mod validate;
 pub mod yaml;
 
+pub use collect::Collected;
 pub use diagnostic::{Diagnostic, Diagnostics};
 pub use error::{NodeError, RunError};
+pub use interface::{Contract, ExposedOutput, ExposedParam, Interface};
 pub use message::{Header, Instant, Message};
 pub use metrics::{NodeReport, RunReport};
+pub use models::Models;
 pub use node::{Figures, Inputs, Node, Outputs, Role, Sink, Source, SourceInfo, Task};
 pub use pacing::{Pacing, PacingError};
 pub use policy::EdgePolicy;
@@ -37,7 +43,8 @@ pub use registry::{GraphRule, KindSpec, NodeKind, ParamError, Registry, RuleProb
 pub use runtime::{RunObserver, RunOptions, RunOutcome, StopHandle, run};
 pub use schema::{OnError, SyncMode};
 pub use validate::{
-    GraphSpec, NodeSpec, Override, OverrideError, ResolvedGraph, ValidatedGraph, resolve, validate,
+    GraphSpec, NodeSpec, Override, OverrideError, OverrideTarget, ResolvedGraph, ValidatedGraph,
+    resolve, validate,
 };
 
 /// Reads and validates a graph file (nothing is built: `ValidatedGraph::build` does that).

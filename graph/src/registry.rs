@@ -7,6 +7,7 @@ use std::sync::Arc;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
+use crate::models::Models;
 use crate::node::{Node, Role};
 use crate::port::PortSpec;
 use crate::schema::SyncMode;
@@ -36,20 +37,30 @@ impl ParamError {
     }
 }
 
-type Checker = dyn Fn(&serde_json::Value) -> Result<Checked, ParamError> + Send + Sync;
+type Checker = dyn Fn(&serde_json::Value, &Models) -> Result<Checked, ParamError> + Send + Sync;
+
+/// What builds a checked node, from the graph's models.
+type Builder = dyn FnOnce(&Models) -> Result<Node, ParamError> + Send;
+
+/// The application's check of one bundle of the graph's `models:` section: the bundle as
+/// resolved (defaults filled in), or every problem found, each naming its field
+/// (`world_model.weights`).
+type BundleChecker =
+    dyn Fn(&serde_json::Value) -> Result<serde_json::Value, Vec<ParamError>> + Send + Sync;
 
 /// A node's parameters, typed and checked, with the node not yet built: validation (`bevworld
 /// check`) stops here, so it loads nothing, and `run` builds.
 pub struct Checked {
     /// The parameters as resolved (defaults filled in).
     pub resolved_params: serde_json::Value,
-    build: Box<dyn FnOnce() -> Result<Node, ParamError> + Send>,
+    build: Box<Builder>,
 }
 
 impl Checked {
-    /// Builds the node: opens what it needs (model weights, files).
-    pub fn build(self) -> Result<Node, ParamError> {
-        (self.build)()
+    /// Builds the node: opens what it needs (files; model weights through `models`, which
+    /// loads each part once per graph).
+    pub fn build(self, models: &Models) -> Result<Node, ParamError> {
+        (self.build)(models)
     }
 }
 
@@ -70,14 +81,45 @@ impl std::ops::Deref for NodeKind {
 }
 
 impl NodeKind {
-    /// Types and checks `params` without building the node.
-    pub fn check(&self, params: &serde_json::Value) -> Result<Checked, ParamError> {
-        (self.checker)(params)
+    /// Types and checks `params` without building the node; `models` are the graph's bundles,
+    /// which a node that runs a model must name.
+    pub fn check(
+        &self,
+        params: &serde_json::Value,
+        models: &Models,
+    ) -> Result<Checked, ParamError> {
+        (self.checker)(params, models)
+    }
+
+    /// A kind the runtime adds itself (a command's collector), never named by a graph file.
+    pub(crate) fn internal(spec: KindSpec) -> Self {
+        let name = spec.name;
+        Self {
+            spec,
+            checker: Arc::new(move |_: &serde_json::Value, _: &Models| {
+                Err(ParamError {
+                    field: None,
+                    message: format!(
+                        "'{name}' is added by the runtime, not built from a graph file"
+                    ),
+                    accepted: None,
+                })
+            }),
+        }
     }
 
     /// Checks `params` and builds the node at once, for code that makes one node by itself.
     pub fn build(&self, params: &serde_json::Value) -> Result<Node, ParamError> {
-        self.check(params)?.build()
+        self.build_with(params, &Models::none())
+    }
+
+    /// As `build`, with model bundles to load from.
+    pub fn build_with(
+        &self,
+        params: &serde_json::Value,
+        models: &Models,
+    ) -> Result<Node, ParamError> {
+        self.check(params, models)?.build(models)
     }
 }
 
@@ -168,6 +210,7 @@ pub type GraphRule = dyn Fn(&crate::validate::GraphSpec) -> Vec<RuleProblem> + S
 pub struct Registry {
     kinds: BTreeMap<&'static str, NodeKind>,
     rules: Vec<Arc<GraphRule>>,
+    bundles: Option<Arc<BundleChecker>>,
 }
 
 impl Registry {
@@ -195,17 +238,34 @@ impl Registry {
         C: Fn(&P) -> Result<(), ParamError> + Send + Sync + 'static,
         F: Fn(P) -> Result<Node, ParamError> + Send + Sync + 'static,
     {
+        self.register_with_models(
+            spec,
+            move |params: &P, _: &Models| check(params),
+            move |params: P, _: &Models| build(params),
+        );
+    }
+
+    /// As `register_checked`, for a kind that runs a model of the graph's `models:` section:
+    /// `check` sees the bundles (`Models::require`), and `build` loads through them.
+    pub fn register_with_models<P, C, F>(&mut self, spec: KindSpec, check: C, build: F)
+    where
+        P: DeserializeOwned + Serialize + Send + 'static,
+        C: Fn(&P, &Models) -> Result<(), ParamError> + Send + Sync + 'static,
+        F: Fn(P, &Models) -> Result<Node, ParamError> + Send + Sync + 'static,
+    {
         let role = spec.role;
         let build = Arc::new(build);
-        let checker = move |raw: &serde_json::Value| -> Result<Checked, ParamError> {
+        let checker = move |raw: &serde_json::Value,
+                            models: &Models|
+              -> Result<Checked, ParamError> {
             let params: P = deserialize_params(raw)?;
-            check(&params)?;
+            check(&params, models)?;
             let resolved_params = serde_json::to_value(&params).unwrap_or(serde_json::Value::Null);
             let build = Arc::clone(&build);
             Ok(Checked {
                 resolved_params,
-                build: Box::new(move || {
-                    let node = build(params)?;
+                build: Box::new(move |models: &Models| {
+                    let node = build(params, models)?;
                     if node.role() != role {
                         return Err(ParamError {
                             field: None,
@@ -228,6 +288,39 @@ impl Registry {
                 checker: Arc::new(checker),
             },
         );
+    }
+
+    /// Sets how a bundle of the graph's `models:` section is checked: it must deserialize into
+    /// `S` (use `#[serde(deny_unknown_fields)]`), then pass `check`, which names each problem's
+    /// field. Without it, a graph with a `models:` section is refused.
+    pub fn models<S, C>(&mut self, check: C)
+    where
+        S: DeserializeOwned + Serialize + 'static,
+        C: Fn(&S) -> Vec<ParamError> + Send + Sync + 'static,
+    {
+        self.bundles = Some(Arc::new(move |raw: &serde_json::Value| {
+            let bundle: S = deserialize_params(raw).map_err(|error| vec![error])?;
+            let problems = check(&bundle);
+            if !problems.is_empty() {
+                return Err(problems);
+            }
+            Ok(serde_json::to_value(&bundle).unwrap_or(serde_json::Value::Null))
+        }));
+    }
+
+    /// Checks one bundle of a graph's `models:` section.
+    pub fn check_bundle(
+        &self,
+        raw: &serde_json::Value,
+    ) -> Result<serde_json::Value, Vec<ParamError>> {
+        match &self.bundles {
+            Some(check) => check(raw),
+            None => Err(vec![ParamError {
+                field: None,
+                message: "this application registers no model bundles".into(),
+                accepted: None,
+            }]),
+        }
     }
 
     /// Adds a rule every graph is checked against once its nodes and edges are valid; its

@@ -30,6 +30,12 @@ pub struct GraphFile {
     pub description: Option<String>,
     #[serde(default)]
     pub settings: Settings,
+    /// Named model bundles (`models.rs`): each loaded once and shared by the nodes naming it.
+    #[serde(default)]
+    pub models: BTreeMap<String, Spanned<BTreeMap<String, Spanned<serde_json::Value>>>>,
+    /// What the graph offers the commands that drive it (`interface.rs`).
+    #[serde(default)]
+    pub interface: Option<Spanned<InterfaceDecl>>,
     pub nodes: Vec<Spanned<NodeDecl>>,
     #[serde(default)]
     pub edges: Vec<Spanned<EdgeDecl>>,
@@ -82,6 +88,43 @@ pub struct NodeDecl {
     /// Largest time-of-validity difference the aligner pairs, in microseconds.
     #[serde(default)]
     pub align_tolerance_us: Option<Spanned<i64>>,
+}
+
+/// The parameters and outputs a graph exposes by name, so that a command binds to the names and
+/// never to node ids:
+///
+/// ```yaml
+/// interface:
+///   params: {data: source.data, horizons: rollout.horizons}
+///   outputs: {scores: scores.table}
+/// ```
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InterfaceDecl {
+    /// Name -> `node.param` (a dotted path inside the node's parameters is allowed), or a list
+    /// of them, set together (one output folder for several sinks).
+    #[serde(default)]
+    pub params: BTreeMap<String, Spanned<ParamTargets>>,
+    /// Name -> `node.port`, an output port.
+    #[serde(default)]
+    pub outputs: BTreeMap<String, Spanned<String>>,
+}
+
+/// What an exposed parameter stands for: one `node.param`, or several set together.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub enum ParamTargets {
+    One(String),
+    Many(Vec<String>),
+}
+
+impl ParamTargets {
+    pub fn targets(&self) -> Vec<&str> {
+        match self {
+            ParamTargets::One(one) => vec![one.as_str()],
+            ParamTargets::Many(many) => many.iter().map(String::as_str).collect(),
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]

@@ -2,10 +2,13 @@
 //! and that into a runnable `ResolvedGraph`.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 
 use serde_saphyr::{Location, Spanned};
 
 use crate::diagnostic::{Diagnostic, Diagnostics, Position, closest};
+use crate::interface::Interface;
+use crate::models::Models;
 use crate::node::{Node, Role};
 use crate::pacing::Pacing;
 use crate::policy::EdgePolicy;
@@ -43,6 +46,10 @@ pub struct GraphSpec {
     pub settings: Settings,
     pub nodes: Vec<NodeSpec>,
     pub edges: Vec<ResolvedEdge>,
+    /// The `models:` section, checked; loaded from as the nodes are built.
+    pub models: Arc<Models>,
+    /// What the graph exposes to commands.
+    pub interface: Interface,
 }
 
 /// A validated graph, ready to build (`bevworld check` stops here).
@@ -104,6 +111,24 @@ impl GraphSpec {
             self.nodes.len(),
             self.edges.len()
         );
+        for (name, bundle) in self.models.bundles() {
+            let _ = writeln!(out, "  models {name}: {bundle}");
+        }
+        for (name, targets) in &self.interface.params {
+            let targets: Vec<String> = targets
+                .iter()
+                .map(|t| format!("{}.{}", t.node, t.key))
+                .collect();
+            let _ = writeln!(out, "  exposes parameter {name} = {}", targets.join(", "));
+        }
+        for (name, output) in &self.interface.outputs {
+            let node = &self.nodes[output.node];
+            let _ = writeln!(
+                out,
+                "  exposes output {name} = {}.{}",
+                node.id, node.kind.outputs[output.port].name
+            );
+        }
         for node in &self.nodes {
             let _ = writeln!(
                 out,
@@ -151,7 +176,7 @@ impl ValidatedGraph {
         };
         let mut nodes = Vec::with_capacity(self.pending.len());
         for ((checked, locations), spec) in self.pending.into_iter().zip(&self.spec.nodes) {
-            match checked.build() {
+            match checked.build(&self.spec.models) {
                 Ok(node) => nodes.push(node),
                 Err(error) => {
                     param_problem(&mut finder, spec.kind.name, &spec.id, error, &locations)
@@ -168,12 +193,12 @@ impl ValidatedGraph {
     }
 }
 
-/// A `--set` that is not `node.key=value`.
+/// A `--set` that is not `target=value`.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum OverrideError {
-    #[error("'{0}' is not node.key=value")]
+    #[error("'{0}' is not node.key=value (or name=value for a parameter the graph exposes)")]
     NoValue(String),
-    #[error("'{0}' is not node.key")]
+    #[error("'{0}' is not node.key, models.bundle.key or an exposed parameter's name")]
     NoKey(String),
     /// A value a graph file would refuse in the same place (`.nan`, `.inf`): refused here too,
     /// in the same words, rather than read as text.
@@ -185,66 +210,107 @@ pub enum OverrideError {
     },
 }
 
-/// One `--set node.key=value` override.
+/// What a `--set` changes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum OverrideTarget {
+    /// `node.key`: a parameter (`data`, `grid.size`) or `pacing.rate_hz`, `pacing.speed`,
+    /// `on_error`.
+    Node { node: String, key: String },
+    /// `models.bundle.key`: a file of a model bundle, for every node that runs it.
+    Model { bundle: String, key: String },
+    /// `name`: a parameter the graph exposes in its `interface:`, whichever node holds it.
+    Exposed(String),
+}
+
+/// The node id that names the `models:` section in a `--set`; no node may take it.
+pub const MODELS_TARGET: &str = "models";
+
+/// One `--set target=value` override.
 #[derive(Clone, Debug)]
 pub struct Override {
-    pub node: String,
-    /// Dotted path inside the node: a parameter (`data`, `grid.size`) or `pacing.rate_hz`,
-    /// `pacing.speed`, `on_error`.
-    pub key: String,
+    pub target: OverrideTarget,
     pub value: serde_json::Value,
 }
 
 impl Override {
-    /// Parses `node.key=value`; the value is read as YAML (`12`, `true`, `[1, 2]`, `text`), as
-    /// the graph file reads a parameter: what the file refuses (a non-finite number) is
-    /// refused here too, and a value that is not YAML at all is the text the user typed.
+    /// Parses `node.key=value`, `models.bundle.key=value` or `name=value`; the value is read as
+    /// YAML (`12`, `true`, `[1, 2]`, `text`), as the graph file reads a parameter: what the
+    /// file refuses (a non-finite number) is refused here too, and a value that is not YAML at
+    /// all is the text the user typed.
     pub fn parse(text: &str) -> Result<Self, OverrideError> {
         let (target, value) = text
             .split_once('=')
             .ok_or_else(|| OverrideError::NoValue(text.to_string()))?;
-        let (node, key) = target
-            .split_once('.')
-            .ok_or_else(|| OverrideError::NoKey(target.to_string()))?;
-        if node.is_empty() || key.is_empty() {
-            return Err(OverrideError::NoKey(target.to_string()));
-        }
-        let value = if value.trim().is_empty() {
-            serde_json::Value::String(String::new())
-        } else {
-            match serde_saphyr::from_str::<serde_json::Value>(value) {
-                // YAML would read `/tmp/x #2` as `/tmp/x` and a comment: a value on the
-                // command line is the text the user typed.
-                Ok(serde_json::Value::String(_))
-                    if value.contains(" #") && !value.trim_start().starts_with(['"', '\'']) =>
-                {
-                    serde_json::Value::String(value.to_string())
+        let no_key = || OverrideError::NoKey(target.to_string());
+        let parsed_target = match target.split_once('.') {
+            None if is_name(target) => OverrideTarget::Exposed(target.to_string()),
+            None => return Err(no_key()),
+            Some((MODELS_TARGET, rest)) => {
+                let (bundle, key) = rest.split_once('.').ok_or_else(no_key)?;
+                if bundle.is_empty() || key.is_empty() {
+                    return Err(no_key());
                 }
-                Ok(parsed) => parsed,
-                Err(error)
-                    if matches!(
-                        error.without_snippet(),
-                        serde_saphyr::Error::NonFiniteFloat { .. }
-                    ) =>
-                {
-                    return Err(OverrideError::Value {
-                        target: target.to_string(),
-                        value: value.to_string(),
-                        message: crate::yaml::describe(&error),
-                    });
+                OverrideTarget::Model {
+                    bundle: bundle.to_string(),
+                    key: key.to_string(),
                 }
-                Err(_) => serde_json::Value::String(value.to_string()),
             }
+            Some((node, key)) if !node.is_empty() && !key.is_empty() => OverrideTarget::Node {
+                node: node.to_string(),
+                key: key.to_string(),
+            },
+            Some(_) => return Err(no_key()),
         };
         Ok(Self {
-            node: node.to_string(),
-            key: key.to_string(),
-            value,
+            target: parsed_target,
+            value: parse_value(target, value)?,
         })
+    }
+
+    /// The override of node `id`'s parameter `key`, if this is one.
+    fn of_node(&self, id: &str) -> Option<&str> {
+        match &self.target {
+            OverrideTarget::Node { node, key } if node == id => Some(key),
+            _ => None,
+        }
     }
 }
 
-struct Finder<'a> {
+/// A parameter name: letters, digits and `_`.
+fn is_name(text: &str) -> bool {
+    !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+fn parse_value(target: &str, value: &str) -> Result<serde_json::Value, OverrideError> {
+    if value.trim().is_empty() {
+        return Ok(serde_json::Value::String(String::new()));
+    }
+    match serde_saphyr::from_str::<serde_json::Value>(value) {
+        // YAML would read `/tmp/x #2` as `/tmp/x` and a comment: a value on the command line
+        // is the text the user typed.
+        Ok(serde_json::Value::String(_))
+            if value.contains(" #") && !value.trim_start().starts_with(['"', '\'']) =>
+        {
+            Ok(serde_json::Value::String(value.to_string()))
+        }
+        Ok(parsed) => Ok(parsed),
+        Err(error)
+            if matches!(
+                error.without_snippet(),
+                serde_saphyr::Error::NonFiniteFloat { .. }
+            ) =>
+        {
+            Err(OverrideError::Value {
+                target: target.to_string(),
+                value: value.to_string(),
+                message: crate::yaml::describe(&error),
+            })
+        }
+        Err(_) => Ok(serde_json::Value::String(value.to_string())),
+    }
+}
+
+pub(crate) struct Finder<'a> {
     file: &'a str,
     found: Vec<Diagnostic>,
 }
@@ -267,7 +333,12 @@ impl Finder<'_> {
         });
     }
 
-    fn at(&mut self, location: Option<Location>, message: impl Into<String>, hint: Option<String>) {
+    pub(crate) fn at(
+        &mut self,
+        location: Option<Location>,
+        message: impl Into<String>,
+        hint: Option<String>,
+    ) {
         let position = location
             .filter(|l| *l != Location::UNKNOWN)
             .map(|l| Position {
@@ -283,7 +354,7 @@ impl Finder<'_> {
     }
 }
 
-fn loc<T>(spanned: &Spanned<T>) -> Option<Location> {
+pub(crate) fn loc<T>(spanned: &Spanned<T>) -> Option<Location> {
     Some(spanned.referenced)
 }
 
@@ -351,13 +422,21 @@ pub fn validate(
         );
     }
     let declared = DeclaredNodes::index(&mut finder, &parsed);
+    let overrides = crate::interface::resolve_overrides(&mut finder, &parsed, overrides);
+    let models = Arc::new(check_models(&mut finder, registry, &parsed, &overrides));
     let mut nodes = Vec::new();
     for (index, decl) in parsed.nodes.iter().enumerate() {
         if declared.first_of(&decl.value.id.value) == Some(index) {
-            nodes.push(check_node(&mut finder, registry, &decl.value, overrides));
+            nodes.push(check_node(
+                &mut finder,
+                registry,
+                &decl.value,
+                &overrides,
+                &models,
+            ));
         }
     }
-    check_override_targets(&mut finder, overrides, &declared.ids);
+    check_override_targets(&mut finder, &overrides, &declared.ids);
     let edges = check_edges(&mut finder, registry, &parsed, &declared);
     if let Some(cycle) = find_cycle(declared.ids.len(), &edges) {
         let names: Vec<&str> = cycle.iter().map(|&i| declared.ids[i].as_str()).collect();
@@ -375,12 +454,18 @@ pub fn validate(
         .flatten()
         .map(|(spec, checked, locations)| (spec, (checked, locations)))
         .unzip();
+    let interface = crate::interface::check(&mut finder, &parsed, &specs);
+    if !finder.found.is_empty() {
+        return Err(Diagnostics(finder.found));
+    }
     let spec = GraphSpec {
         name: parsed.name.unwrap_or_else(|| file.to_string()),
         file: file.to_string(),
         settings: parsed.settings,
         nodes: specs,
         edges,
+        models,
+        interface,
     };
     for rule in registry.rules() {
         for problem in rule(&spec) {
@@ -432,11 +517,13 @@ impl DeclaredNodes {
         for (position, decl) in parsed.nodes.iter().enumerate() {
             let decl = &decl.value;
             let id = decl.id.value.clone();
-            if id.is_empty() || id.contains('.') {
+            if id.is_empty() || id.contains('.') || id == MODELS_TARGET {
                 finder.at(
                     loc(&decl.id),
                     format!("node id '{id}' is not valid"),
-                    Some("ids are non-empty and have no '.'".into()),
+                    Some(format!(
+                        "ids are non-empty, have no '.', and are not '{MODELS_TARGET}' (which `--set models.*` names)"
+                    )),
                 );
             }
             if nodes.index.contains_key(&id) {
@@ -483,6 +570,7 @@ fn check_node(
     registry: &Registry,
     decl: &NodeDecl,
     overrides: &[Override],
+    models: &Models,
 ) -> Option<(NodeSpec, Checked, ParamLocations)> {
     let id = decl.id.value.clone();
     let Some(kind) = registry.get(&decl.kind.value) else {
@@ -524,9 +612,10 @@ fn check_node(
     // defaults included, so that `grid.pillar_size=0.5` keeps the default grid's ranges.
     let has_param_override = overrides
         .iter()
-        .any(|o| o.node == id && !o.key.starts_with("pacing.") && o.key != "on_error");
+        .filter_map(|o| o.of_node(&id))
+        .any(|key| !key.starts_with("pacing.") && key != "on_error");
     if has_param_override
-        && let Ok(checked) = kind.check(&serde_json::Value::Object(params.clone()))
+        && let Ok(checked) = kind.check(&serde_json::Value::Object(params.clone()), models)
         && let serde_json::Value::Object(resolved) = checked.resolved_params
     {
         for (key, value) in resolved {
@@ -536,8 +625,11 @@ fn check_node(
     let mut pacing_decl = decl.pacing.as_ref().map(|p| p.value).unwrap_or_default();
     let mut pacing_overridden = false;
     let mut on_error = decl.on_error.as_ref().map(|o| o.value).unwrap_or_default();
-    for over in overrides.iter().filter(|o| o.node == id) {
-        match over.key.as_str() {
+    for (key, over) in overrides
+        .iter()
+        .filter_map(|o| o.of_node(&id).map(|key| (key, o)))
+    {
+        match key {
             key @ ("pacing.speed" | "pacing.rate_hz") => {
                 let Some(value) = over.value.as_f64() else {
                     finder.at(
@@ -571,8 +663,19 @@ fn check_node(
             key => set_path(&mut params, key, over.value.clone()),
         }
     }
-    let checked = match kind.check(&serde_json::Value::Object(params)) {
+    // A node naming a bundle whose own check failed is not refused again for it.
+    let names_refused_bundle = params
+        .get(crate::models::MODEL_FIELD)
+        .and_then(serde_json::Value::as_str)
+        .is_some_and(|name| models.is_refused(name));
+    let checked = match kind.check(&serde_json::Value::Object(params), models) {
         Ok(checked) => Some(checked),
+        Err(error)
+            if names_refused_bundle
+                && error.field.as_deref() == Some(crate::models::MODEL_FIELD) =>
+        {
+            None
+        }
         Err(error) => {
             param_problem(finder, kind.name, &id, error, &locations);
             None
@@ -635,22 +738,89 @@ fn check_node(
     Some((spec, checked, locations))
 }
 
-/// Every `--set` must name a node of the graph.
+/// Every `node.key` `--set` must name a node of the graph.
 fn check_override_targets(finder: &mut Finder, overrides: &[Override], node_ids: &[String]) {
     for over in overrides {
-        if !node_ids.contains(&over.node) {
-            let hint = closest(&over.node, node_ids.iter().map(String::as_str))
+        let OverrideTarget::Node { node, .. } = &over.target else {
+            continue;
+        };
+        if !node_ids.contains(node) {
+            let hint = closest(node, node_ids.iter().map(String::as_str))
                 .map(|near| format!("did you mean '{near}'?"));
             finder.at(
                 None,
-                format!(
-                    "--set names node '{}', which the graph does not have",
-                    over.node
-                ),
+                format!("--set names node '{node}', which the graph does not have"),
                 hint,
             );
         }
     }
+}
+
+/// The `models:` section with its `--set models.*` overrides, each bundle checked by the
+/// application's bundle check; a problem points at the bundle's key it names.
+fn check_models(
+    finder: &mut Finder,
+    registry: &Registry,
+    parsed: &GraphFile,
+    overrides: &[Override],
+) -> Models {
+    let mut bundles = BTreeMap::new();
+    let mut refused = Vec::new();
+    for over in overrides {
+        if let OverrideTarget::Model { bundle, key } = &over.target
+            && !parsed.models.contains_key(bundle)
+        {
+            let names = parsed.models.keys().map(String::as_str);
+            finder.at(
+                None,
+                format!("--set models.{bundle}.{key}: the graph has no model bundle '{bundle}'"),
+                closest(bundle, names).map(|near| format!("did you mean '{near}'?")),
+            );
+        }
+    }
+    for (name, declared) in &parsed.models {
+        let mut raw = serde_json::Map::new();
+        let mut keys = BTreeMap::new();
+        for (key, value) in &declared.value {
+            raw.insert(key.clone(), value.value.clone());
+            keys.insert(key.clone(), value.referenced);
+        }
+        for over in overrides {
+            if let OverrideTarget::Model { bundle, key } = &over.target
+                && bundle == name
+            {
+                set_path(&mut raw, key, over.value.clone());
+            }
+        }
+        match registry.check_bundle(&serde_json::Value::Object(raw)) {
+            Ok(resolved) => {
+                bundles.insert(name.clone(), resolved);
+            }
+            Err(problems) => {
+                refused.push(name.clone());
+                for problem in problems {
+                    let top = problem
+                        .field
+                        .as_deref()
+                        .map(|f| f.split('.').next().unwrap_or(f));
+                    let location = top
+                        .and_then(|top| keys.get(top).copied())
+                        .or(Some(declared.referenced));
+                    let field = problem.field.as_deref().unwrap_or("bundle");
+                    finder.at(
+                        location,
+                        format!("model bundle '{name}', '{field}': {}", problem.message),
+                        problem.accepted.map(|a| format!("accepted: {a}")),
+                    );
+                }
+            }
+        }
+    }
+    let mut models = Models::new(bundles);
+    for name in refused {
+        models.refuse(&name);
+    }
+    models
 }
 
 /// Edges: endpoints exist, types agree, capacities are positive; then every required input

@@ -210,8 +210,22 @@ fn set_overrides_parameters_and_rejects_unknown_nodes() {
     .err()
     .unwrap();
     assert!(bad.mentions("--set names node 'c'"));
-    assert!(Override::parse("nodot=1").is_err());
+    // A name without a dot is a parameter the graph exposes; this one exposes none.
+    let unexposed = resolve(
+        yaml,
+        "g.yaml",
+        &registry(),
+        &[Override::parse("count=1").unwrap()],
+    )
+    .err()
+    .unwrap();
+    assert!(
+        unexposed.mentions("the graph exposes no parameter 'count'"),
+        "{unexposed}"
+    );
+    assert!(Override::parse("no-name=1").is_err());
     assert!(Override::parse("a.count").is_err());
+    assert!(Override::parse("models.tiny=1").is_err());
 }
 
 #[test]

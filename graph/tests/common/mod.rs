@@ -8,8 +8,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
 use bevworld_graph::{
-    Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Sink, Source, SyncMode,
-    Task,
+    Inputs, KindSpec, Models, Node, NodeError, Outputs, ParamError, Port, Registry, Sink, Source,
+    SyncMode, Task,
 };
 use serde::{Deserialize, Serialize};
 
@@ -329,6 +329,32 @@ pub fn registry() -> Registry {
             .sync(SyncMode::Aligned),
         |_: NoParams| Ok(Node::Task(Box::new(Join))),
     );
+    registry.models(|bundle: &OffsetBundle| {
+        if bundle.offset >= 1000 {
+            vec![
+                ParamError::field("offset", format!("{} is too large", bundle.offset))
+                    .with_accepted("below 1000"),
+            ]
+        } else {
+            Vec::new()
+        }
+    });
+    registry.register_with_models(
+        KindSpec::task("offset", "adds its model bundle's offset to every item")
+            .input(IN.spec())
+            .output(OUT.spec()),
+        |params: &OffsetParams, models: &Models| {
+            models.require(&params.model, &["offset"]).map(|_| ())
+        },
+        |params: OffsetParams, models: &Models| {
+            let offset = models.load(&params.model, |bundle| {
+                let bundle: OffsetBundle = serde_json::from_value(bundle.clone())
+                    .map_err(|e| ParamError::field("model", e.to_string()))?;
+                Ok(Offset(bundle.offset))
+            })?;
+            Ok(Node::Task(Box::new(OffsetPass { offset })))
+        },
+    );
     registry.register_checked(
         KindSpec::sink("text_sink", "takes text").input(TEXT.spec()),
         |params: &TextParams| {
@@ -344,4 +370,33 @@ pub fn registry() -> Registry {
         |_: TextParams| Ok(Node::Sink(Box::new(TextSink))),
     );
     registry
+}
+
+/// A model bundle of the test registry: one number.
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct OffsetBundle {
+    pub offset: u64,
+    #[serde(default)]
+    pub note: Option<String>,
+}
+
+/// The loaded "model": shared by every node naming its bundle.
+pub struct Offset(pub u64);
+
+#[derive(Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct OffsetParams {
+    pub model: String,
+}
+
+struct OffsetPass {
+    offset: Arc<Offset>,
+}
+
+impl Task for OffsetPass {
+    fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
+        let item = inputs.get(&IN)?;
+        out.send(&OUT, Counted::new(item.value + self.offset.0))
+    }
 }
