@@ -42,9 +42,11 @@ enum Command {
     Run {
         /// Graph file, e.g. configs/graphs/replay.yaml.
         graph: PathBuf,
-        /// Override a node parameter: node.param=value (repeatable). Also node.pacing.rate_hz,
+        /// Override a parameter (repeatable): name=value for one the graph exposes in its
+        /// `interface:`, models.BUNDLE.KEY=value for a model file (every node running the
+        /// bundle), node.param=value for any node's; also node.pacing.rate_hz,
         /// node.pacing.speed and node.on_error.
-        #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+        #[arg(long = "set", value_name = "TARGET=VALUE")]
         set: Vec<String>,
         /// Write the run's metrics as JSON.
         #[arg(long, value_name = "FILE")]
@@ -52,18 +54,20 @@ enum Command {
         /// Hide the progress bar.
         #[arg(long)]
         no_progress: bool,
-        /// Process every N-th scene starting at I (sets `source.shard`), so one command can be
-        /// spread over machines by any batch scheduler.
+        /// Process every N-th scene starting at I (sets the graph's exposed `shard`), so one
+        /// command can be spread over machines by any batch scheduler.
         #[arg(long, value_name = "I/N")]
         shard: Option<String>,
         /// Rewrite existing output files of every `export_features` node.
         #[arg(long)]
         overwrite: bool,
     },
-    /// Validate a graph and print it resolved (parameters with defaults, edges with policies).
+    /// Validate a graph and print it resolved (models, exposed names, parameters with
+    /// defaults, edges with policies). A graph a command runs by default is also held to that
+    /// command's contract: the names it binds to must be exposed.
     Check {
         graph: PathBuf,
-        #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+        #[arg(long = "set", value_name = "TARGET=VALUE")]
         set: Vec<String>,
     },
     /// Print a graph in another form.
@@ -72,7 +76,7 @@ enum Command {
         /// Graphviz DOT (render with `dot -Tsvg`).
         #[arg(long)]
         dot: bool,
-        #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+        #[arg(long = "set", value_name = "TARGET=VALUE")]
         set: Vec<String>,
     },
     /// List the node kinds with their ports.
@@ -188,7 +192,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         } => {
             if let Some(shard) = shard {
                 bevworld_sensors::source::parse_shard(&shard).context("--shard")?;
-                set.push(format!("source.shard={shard}"));
+                set.push(format!("shard={shard}"));
             }
             if overwrite {
                 set.extend(
@@ -204,6 +208,19 @@ fn dispatch(command: Command) -> Result<ExitCode> {
                 return Ok(ExitCode::from(2));
             };
             print!("{}", validated.spec.describe());
+            let mut refused = false;
+            for contract in commands::contracts::of_default_graph(&graph) {
+                match validated.spec.check_contract(&contract) {
+                    Ok(()) => println!("  serves `{}`", contract.command),
+                    Err(diagnostics) => {
+                        eprintln!("{diagnostics}");
+                        refused = true;
+                    }
+                }
+            }
+            if refused {
+                return Ok(ExitCode::from(2));
+            }
             println!("ok");
             Ok(ExitCode::SUCCESS)
         }

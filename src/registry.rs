@@ -3,6 +3,7 @@
 //! families meet.
 
 use bevworld_graph::{GraphSpec, ParamError, Registry, RuleProblem};
+use bevworld_types::{LatentStatsFile, ModelBundle};
 
 pub fn registry() -> Registry {
     let mut registry = Registry::new();
@@ -12,8 +13,73 @@ pub fn registry() -> Registry {
     bevworld_tokenizer::register(&mut registry);
     bevworld_metrics::register(&mut registry);
     bevworld_world_model::register(&mut registry);
+    registry.models(check_bundle);
     registry.rule(forecast_sink_is_fed_its_method);
     registry
+}
+
+/// A bundle of a graph's `models:` section, checked before anything runs: the tokenizer's
+/// config and weights, its latent statistics, the world model's config and sealed weights, and
+/// that they belong together (the world model was trained on this tokenizer's latents, and the
+/// statistics are this tokenizer's). Each problem names its field.
+fn check_bundle(bundle: &ModelBundle) -> Vec<ParamError> {
+    let mut problems = Vec::new();
+    let tokenizer = bundle.tokenizer.as_ref().and_then(|files| {
+        bevworld_tokenizer::nodes::check_files(files)
+            .map_err(|problem| problems.push(problem))
+            .ok()
+            .map(|checked| (files, checked))
+    });
+    // The statistics are read when something reads them: a world model, or a file named.
+    let stats = tokenizer.as_ref().and_then(|(files, _)| {
+        if bundle.world_model.is_none() && files.latent_stats.is_none() {
+            return None;
+        }
+        let path = files.latent_stats_path()?;
+        LatentStatsFile::load(&path)
+            .map_err(|error| {
+                problems.push(
+                    ParamError::field("tokenizer.latent_stats", error.to_string()).with_accepted(
+                        "the file `bevworld tokenizer stats` writes beside the weights",
+                    ),
+                )
+            })
+            .ok()
+    });
+    let Some(world_model) = &bundle.world_model else {
+        return problems;
+    };
+    let checked = match bevworld_world_model::nodes::model_params::check_files(world_model) {
+        Ok(checked) => checked,
+        Err(problem) => {
+            problems.push(problem);
+            return problems;
+        }
+    };
+    match (&tokenizer, &stats) {
+        (None, _) if bundle.tokenizer.is_none() => problems.push(ParamError::field(
+            "world_model",
+            "a world model reads the latents of a tokenizer: the bundle needs the `tokenizer` it was trained with",
+        )),
+        (Some((files, _)), None) if files.is_untrained() => problems.push(ParamError::field(
+            "tokenizer.weights",
+            "a world model cannot run on an untrained tokenizer's latents",
+        )),
+        (Some((_, tokenizer)), Some(stats)) => {
+            let (config, meta) = &checked;
+            if let Err(problem) = bevworld_world_model::nodes::model_params::check_pairing(
+                config,
+                meta,
+                (&tokenizer.config.name, &tokenizer.weights_hash),
+                stats,
+            ) {
+                problems.push(problem);
+            }
+        }
+        // The tokenizer's own problem is reported already.
+        _ => {}
+    }
+    problems
 }
 
 /// A `forecast_sink` writes the renders of one method: the `future_views` upstream of it must

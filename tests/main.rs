@@ -11,6 +11,9 @@ mod forecast;
 mod hard_cases;
 mod inspect;
 mod layering;
+mod models;
+#[path = "../src/registry.rs"]
+mod registry;
 mod reliability;
 mod tokenizer_graphs;
 mod train_cli;

@@ -268,21 +268,28 @@ fn bad_model_params_fail_before_any_frame_naming_the_field() {
     std::fs::write(&garbage, b"not a burnpack file").expect("write");
     let cases: Vec<(Vec<String>, Vec<&str>)> = vec![
         (
-            vec!["encode.weights=/nonexistent/tokenizer.bpk".into()],
+            vec!["models.tiny.tokenizer.weights=/nonexistent/tokenizer.bpk".into()],
             vec![
-                "encode",
-                "weights",
+                "model bundle 'tiny'",
+                "tokenizer.weights",
                 "/nonexistent/tokenizer.bpk",
                 "not found",
             ],
         ),
         (
-            vec![format!("render.weights={}", garbage.display())],
-            vec!["render", "weights", "garbage.bpk"],
+            vec![format!(
+                "models.tiny.tokenizer.weights={}",
+                garbage.display()
+            )],
+            vec!["'tiny'", "tokenizer.weights", "garbage.bpk"],
         ),
         (
-            vec!["encode.model=configs/models/nope.yaml".into()],
-            vec!["encode", "model", "nope.yaml"],
+            vec!["models.tiny.tokenizer.config=configs/models/nope.yaml".into()],
+            vec!["'tiny'", "tokenizer.config", "nope.yaml"],
+        ),
+        (
+            vec!["encode.model=tyni".into()],
+            vec!["encode", "model", "no model bundle 'tyni'"],
         ),
         (
             vec!["render.skipping.segment=0".into()],
@@ -333,11 +340,9 @@ fn a_lidar_only_model_refuses_to_render_the_cameras() {
         "--set".into(),
         format!("source.data={}", data.display()),
         "--set".into(),
-        format!("render.model={}", lidar_only.display()),
+        format!("models.tiny.tokenizer.config={}", lidar_only.display()),
         "--set".into(),
-        "render.weights=untrained".into(),
-        "--set".into(),
-        "encode.weights=untrained".into(),
+        "models.tiny.tokenizer.weights=untrained".into(),
     ];
     args.extend(reconstruct_outputs(&dir.path().join("out")));
     let output = bevworld_owned(&args);
@@ -490,9 +495,8 @@ fn check_reads_no_weights_and_run_loads_them() {
     let data = dir.path().join("data");
     synth_small(&data, 1);
     let sets = [
-        format!("encode.weights={}", weights.display()),
-        format!("render.weights={}", weights.display()),
-        format!("source.data={}", data.display()),
+        format!("models.tiny.tokenizer.weights={}", weights.display()),
+        format!("data={}", data.display()),
     ];
     let with_sets = |command: &str| {
         let mut args = vec![

@@ -167,9 +167,7 @@ fn a_short_run_trains_checkpoints_resumes_and_its_weights_drive_the_graph() {
         "--set".into(),
         format!("source.data={}", val.display()),
         "--set".into(),
-        format!("encode.weights={}", weights.display()),
-        "--set".into(),
-        format!("render.weights={}", weights.display()),
+        format!("models.tiny.tokenizer.weights={}", weights.display()),
     ];
     graph.extend(reconstruct_outputs(&out));
     let output = call(graph);

@@ -19,11 +19,11 @@ for split in val:9100:2 test:9500:4; do
 done
 for steps in 1 4; do
     $BIN eval forecast --data out/synth-wm-val --out "out/eval-forecast-val-s$steps" --steps "$steps" \
-        --set rollout.shrink=null
+        --set shrink=null
 done
 for tau in 0.15 0.25 0.4; do
     $BIN eval forecast --data out/synth-wm-val --out "out/eval-forecast-val-tau$tau" \
-        --set "rollout.shrink={tau: $tau, fade_s: 3.0}" --set "views.methods=[model]"
+        --set "shrink={tau: $tau, fade_s: 3.0}" --set "methods=[model]"
 done
 $BIN eval forecast --data out/synth-wm-test --out out/eval-forecast-test \
     --plot bench/results/forecast-chamfer.png --json > bench/results/forecast-test.json

@@ -11,7 +11,7 @@ if [ ! -d "$DATA" ]; then
     $BIN synth --out "$DATA" --seed 9502 --scenes 2 --seconds 24 --camera-size 224x126
 fi
 if [ ! -f "$LATENTS/index.json" ]; then
-    $BIN run configs/graphs/export_latents.yaml --set "source.data=$DATA" \
-        --set "export.out=$LATENTS" --no-progress
+    $BIN run configs/graphs/export_latents.yaml --set "data=$DATA" \
+        --set "out=$LATENTS" --no-progress
 fi
 cargo run --release -p bevworld-bench --bin long_rollout -- "$LATENTS"

@@ -37,10 +37,9 @@ done
 # the plain residual, warp-input and fade-2 runs, through the forecast graph with their weights,
 # sampled as drawn (without the rollout's residual shrink, which the page's figures predate).
 for name in v-residual v-residual-warp-input fade2; do
-    sed -e "s|configs/models/world-model-tiny.yaml|runs/ablation-$name/model-config.yaml|" \
-        -e "s|nodes/world_model/weights/world-model-tiny.bpk|runs/ablation-$name/world-model-tiny.bpk|" \
-        configs/graphs/forecast.yaml > "runs/ablation-$name/forecast.yaml"
     echo "== $name, rendered"
-    $BIN eval forecast --data out/synth-wm-val --graph "runs/ablation-$name/forecast.yaml" \
-        --out "runs/ablation-$name/eval-forecast" --set rollout.shrink=null
+    $BIN eval forecast --data out/synth-wm-val --out "runs/ablation-$name/eval-forecast" \
+        --set "models.tiny.world_model.config=runs/ablation-$name/model-config.yaml" \
+        --set "models.tiny.world_model.weights=runs/ablation-$name/world-model-tiny.bpk" \
+        --set shrink=null
 done

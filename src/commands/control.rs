@@ -18,7 +18,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use bevworld_metrics::{Roi, chamfer_in_roi};
 use bevworld_sensors::{Dataset, DatasetFormat, DatasetOptions};
-use bevworld_types::{Manoeuvre, SensorFrame};
+use bevworld_types::{Manoeuvre, RenderedFuture, SensorFrame};
 use clap::Args;
 
 #[derive(Args)]
@@ -26,8 +26,8 @@ pub struct ControlEvalArgs {
     /// A branched dataset (`bevworld synth --branch-at`).
     #[arg(long)]
     pub data: PathBuf,
-    /// The forecast graph whose nodes (`source`, `history`, `rollout`, `views`, `render`,
-    /// `files`, `scores`) make each forecast.
+    /// The forecast graph that makes each forecast: it must expose the names this command
+    /// binds to (`bevworld check` lists them).
     #[arg(long, default_value = "configs/graphs/forecast.yaml")]
     pub graph: PathBuf,
     /// The horizon the forecasts are compared at, seconds.
@@ -127,22 +127,20 @@ fn context(
     Ok(Some(SharedContext { index, truths }))
 }
 
+/// Per manoeuvre: pairs right, pairs, and the sum and count of the swap ratios.
+#[derive(Default)]
+struct Tally {
+    right: usize,
+    pairs: usize,
+    ratio_sum: f64,
+    ratios: usize,
+}
+
 pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
+    let contract = &super::contracts::EVAL_CONTROL;
     // The model's own facts: its frame interval, how far it forecasts, its condition frames.
-    let model = crate::commands::graph_run::world_model_of(&args.graph)?;
-    let interval = model.frame_interval_s;
-    let ahead = (args.horizon / interval).round();
-    if !(ahead >= 1.0
-        && ahead <= model.future_frames as f64
-        && (ahead * interval - args.horizon).abs() <= 1e-9)
-    {
-        return Err(crate::commands::refuse(format!(
-            "--horizon {}: forecasts are compared at a horizon after the context, one of the world model's future frames: a multiple of its {interval} s frame interval from {interval} s on, to {} s",
-            args.horizon,
-            interval * model.future_frames as f64
-        )));
-    }
-    let ahead = ahead as usize;
+    let model = super::graph_run::world_model_of(&args.graph, contract)?;
+    let ahead = frames_ahead(args.horizon, &model)?;
     if let Some(path) = &args.picture {
         crate::commands::eval::check_picture_path("--picture", path)?;
     }
@@ -163,8 +161,7 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
     // Frames read before the context frame: its other condition frames, and one before them
     // for the first action; as many as the model's condition frames.
     let history = model.context_frames;
-    let roi = Roi::FOUR_D_OCC;
-    let mut rows: BTreeMap<Manoeuvre, (usize, usize, f64, usize)> = BTreeMap::new();
+    let mut tallies: BTreeMap<Manoeuvre, Tally> = BTreeMap::new();
     let mut picture: Option<Vec<Panel>> = None;
     let mut contexts = 0;
     // Per group: forecast manoeuvre -> true manoeuvre -> Chamfer.
@@ -178,88 +175,18 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
             continue;
         };
         contexts += 1;
-        let (_, first_scene, _) = &group[0];
-        let mut forecasts = Vec::new();
-        for (manoeuvre, _, _) in group {
-            let out = args.out.join(base).join(manoeuvre.name());
-            if out.exists() {
-                std::fs::remove_dir_all(&out)
-                    .with_context(|| format!("clearing {}", out.display()))?;
-            }
-            let mut set = vec![
-                format!("source.data={}", args.data.display()),
-                format!("source.scenes=[{first_scene}]"),
-                format!("source.start={}", context.index - history),
-                format!("source.max_frames={}", history + 1),
-                "history.log_future=false".into(),
-                format!("rollout.actions={}", manoeuvre.name()),
-                format!("rollout.horizons=[{}]", args.horizon),
-                format!("views.methods=[{}]", args.method),
-                format!("files.method={}", args.method),
-                "render.sensors=[lidar]".into(),
-                format!("files.out={}", out.display()),
-                format!("scores.json={}", out.join("scores.json").display()),
-                "scores.print=false".into(),
-            ];
-            if let Some(steps) = args.steps {
-                set.push(format!("rollout.steps={steps}"));
-            }
-            crate::commands::graph_run::run_graph(&args.graph, &set)
-                .with_context(|| format!("forecasting {base} under {}", manoeuvre.name()))?;
-            let ply = std::fs::read_dir(&out)?
-                .filter_map(Result::ok)
-                .map(|e| {
-                    e.path()
-                        .join(format!("+{}s", args.horizon))
-                        .join("LIDAR_TOP.ply")
-                })
-                .find(|p| p.is_file())
-                .with_context(|| format!("{}: the forecast wrote no sweep", out.display()))?;
-            let cloud: Vec<[f64; 3]> = bevworld_sinks::ply::read_ply(&ply)?
-                .iter()
-                .map(|p| [p.x.into(), p.y.into(), p.z.into()])
-                .collect();
-            forecasts.push(cloud);
-        }
-        let mut matrix = serde_json::Map::new();
-        for (a, (manoeuvre, _, _)) in group.iter().enumerate() {
-            let distances: Vec<f64> = context
-                .truths
-                .iter()
-                .map(|truth| chamfer_in_roi(&forecasts[a], truth, &roi).chamfer)
-                .collect();
-            matrix.insert(
-                manoeuvre.name().into(),
-                group
-                    .iter()
-                    .zip(&distances)
-                    .map(|((m, _, _), d)| (m.name().to_string(), serde_json::json!(d)))
-                    .collect::<serde_json::Map<_, _>>()
-                    .into(),
-            );
-            let own = distances[a];
-            let right = distances
-                .iter()
-                .enumerate()
-                .all(|(b, d)| b == a || *d > own);
-            let row = rows.entry(*manoeuvre).or_default();
-            row.0 += usize::from(right);
-            row.1 += 1;
-            for (b, d) in distances.iter().enumerate() {
-                if b != a && own > 0.0 {
-                    row.2 += d / own;
-                    row.3 += 1;
-                }
-            }
-        }
-        matrices.insert(base.clone(), matrix.into());
+        let forecasts = forecast_group(args, base, group, &context, history)?;
+        matrices.insert(
+            base.clone(),
+            score_group(group, &forecasts, &context, &mut tallies).into(),
+        );
         if picture.is_none() {
             picture = Some(
                 group
                     .iter()
-                    .zip(&forecasts)
+                    .zip(forecasts)
                     .zip(&context.truths)
-                    .map(|(((m, _, _), f), t)| (*m, f.clone(), t.clone()))
+                    .map(|(((m, _, _), f), t)| (*m, f, t.clone()))
                     .collect(),
             );
         }
@@ -271,44 +198,182 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
             args.horizon
         );
     }
-    let pairs: usize = rows.values().map(|r| r.1).sum();
-    let right: usize = rows.values().map(|r| r.0).sum();
-    let (ratio_sum, ratio_count) = rows.values().fold((0.0, 0), |(s, n), r| (s + r.2, n + r.3));
-    let accuracy = right as f64 / pairs.max(1) as f64;
-    let swap_ratio = ratio_sum / ratio_count.max(1) as f64;
-    let manoeuvres: Vec<serde_json::Value> = rows
-        .iter()
-        .map(|(m, r)| {
-            serde_json::json!({"manoeuvre": m.name(), "pairs": r.1, "accuracy": r.0 as f64 / r.1.max(1) as f64,
-                "swap_ratio": r.2 / r.3.max(1) as f64})
-        })
-        .collect();
     if let (Some(path), Some(picture)) = (&args.picture, &picture) {
         draw(path, picture, args.horizon)?;
     }
+    report(args, &tallies, contexts, matrices);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The future frame `horizon` seconds after the context: one of the model's, or refused.
+fn frames_ahead(horizon: f64, model: &bevworld_world_model::WorldModelConfig) -> Result<usize> {
+    let interval = model.frame_interval_s;
+    let ahead = (horizon / interval).round();
+    if !(ahead >= 1.0
+        && ahead <= model.future_frames as f64
+        && (ahead * interval - horizon).abs() <= 1e-9)
+    {
+        return Err(crate::commands::refuse(format!(
+            "--horizon {horizon}: forecasts are compared at a horizon after the context, one of the world model's future frames: a multiple of its {interval} s frame interval from {interval} s on, to {} s",
+            interval * model.future_frames as f64
+        )));
+    }
+    Ok(ahead as usize)
+}
+
+/// The forecast sweep of one group's shared context under each of its manoeuvres, in the ego
+/// frame: the forecast graph run once per manoeuvre, bound by its exposed names
+/// (`contracts::EVAL_CONTROL`), the sweep collected in-process from its `rendered` output (the
+/// graph still writes its files under `--out`).
+fn forecast_group(
+    args: &ControlEvalArgs,
+    base: &str,
+    group: &Group,
+    context: &SharedContext,
+    history: usize,
+) -> Result<Vec<Vec<[f64; 3]>>> {
+    let (_, first_scene, _) = &group[0];
+    let mut forecasts = Vec::new();
+    for (manoeuvre, _, _) in group {
+        let out = args.out.join(base).join(manoeuvre.name());
+        if out.exists() {
+            std::fs::remove_dir_all(&out).with_context(|| format!("clearing {}", out.display()))?;
+        }
+        let mut set = vec![
+            format!("data={}", args.data.display()),
+            format!("scenes=[{first_scene}]"),
+            format!("start={}", context.index - history),
+            format!("max_frames={}", history + 1),
+            "log_future=false".into(),
+            format!("actions={}", manoeuvre.name()),
+            format!("horizons=[{}]", args.horizon),
+            format!("methods=[{}]", args.method),
+            format!("written_method={}", args.method),
+            "sensors=[lidar]".into(),
+            format!("out={}", out.display()),
+            format!("scores_json={}", out.join("scores.json").display()),
+            "print_scores=false".into(),
+        ];
+        if let Some(steps) = args.steps {
+            set.push(format!("steps={steps}"));
+        }
+        let forecasting = || format!("forecasting {base} under {}", manoeuvre.name());
+        let mut graph =
+            super::graph_run::build_bound(&args.graph, &super::contracts::EVAL_CONTROL, &set)
+                .with_context(forecasting)?;
+        let rendered = graph
+            .collect::<RenderedFuture>("rendered")
+            .map_err(super::Refused::Graph)?;
+        super::graph_run::run_built(graph).with_context(forecasting)?;
+        let sweep = rendered
+            .take()
+            .into_iter()
+            .filter(|r| r.view.method.name() == args.method)
+            .find_map(|r| r.lidar.as_ref().map(|cloud| cloud.ego_returns()))
+            .with_context(|| format!("{}: the forecast rendered no sweep", forecasting()))?;
+        forecasts.push(
+            sweep
+                .iter()
+                .map(|p| [p.x.into(), p.y.into(), p.z.into()])
+                .collect(),
+        );
+    }
+    Ok(forecasts)
+}
+
+/// Scores one group: each manoeuvre's forecast against every branch's truth, into the tallies;
+/// returns the Chamfer matrix (forecast manoeuvre -> true manoeuvre -> m²).
+fn score_group(
+    group: &Group,
+    forecasts: &[Vec<[f64; 3]>],
+    context: &SharedContext,
+    tallies: &mut BTreeMap<Manoeuvre, Tally>,
+) -> serde_json::Map<String, serde_json::Value> {
+    let roi = Roi::FOUR_D_OCC;
+    let mut matrix = serde_json::Map::new();
+    for (a, (manoeuvre, _, _)) in group.iter().enumerate() {
+        let distances: Vec<f64> = context
+            .truths
+            .iter()
+            .map(|truth| chamfer_in_roi(&forecasts[a], truth, &roi).chamfer)
+            .collect();
+        matrix.insert(
+            manoeuvre.name().into(),
+            group
+                .iter()
+                .zip(&distances)
+                .map(|((m, _, _), d)| (m.name().to_string(), serde_json::json!(d)))
+                .collect::<serde_json::Map<_, _>>()
+                .into(),
+        );
+        let own = distances[a];
+        let tally = tallies.entry(*manoeuvre).or_default();
+        tally.right += usize::from(
+            distances
+                .iter()
+                .enumerate()
+                .all(|(b, d)| b == a || *d > own),
+        );
+        tally.pairs += 1;
+        for (b, d) in distances.iter().enumerate() {
+            if b != a && own > 0.0 {
+                tally.ratio_sum += d / own;
+                tally.ratios += 1;
+            }
+        }
+    }
+    matrix
+}
+
+/// Prints the accuracy and swap ratio per manoeuvre and over all, as a table or one JSON object.
+fn report(
+    args: &ControlEvalArgs,
+    tallies: &BTreeMap<Manoeuvre, Tally>,
+    contexts: usize,
+    matrices: serde_json::Map<String, serde_json::Value>,
+) {
+    let pairs: usize = tallies.values().map(|t| t.pairs).sum();
+    let right: usize = tallies.values().map(|t| t.right).sum();
+    let (ratio_sum, ratios) = tallies
+        .values()
+        .fold((0.0, 0), |(s, n), t| (s + t.ratio_sum, n + t.ratios));
+    let accuracy = right as f64 / pairs.max(1) as f64;
+    let swap_ratio = ratio_sum / ratios.max(1) as f64;
+    let of = |t: &Tally| {
+        (
+            t.right as f64 / t.pairs.max(1) as f64,
+            t.ratio_sum / t.ratios.max(1) as f64,
+        )
+    };
     if args.json {
+        let manoeuvres: Vec<serde_json::Value> = tallies
+            .iter()
+            .map(|(m, t)| {
+                let (accuracy, swap_ratio) = of(t);
+                serde_json::json!({"manoeuvre": m.name(), "pairs": t.pairs, "accuracy": accuracy, "swap_ratio": swap_ratio})
+            })
+            .collect();
         println!(
             "{}",
             serde_json::json!({"accuracy": accuracy, "pairs": pairs, "swap_ratio": swap_ratio, "contexts": contexts, "horizon_s": args.horizon, "method": args.method, "manoeuvres": manoeuvres, "distances": matrices})
         );
-    } else {
-        println!("| manoeuvre | pairs | accuracy | swap ratio |\n|---|---|---|---|");
-        for (m, r) in &rows {
-            println!(
-                "| {} | {} | {:.0}% | {:.2} |",
-                m.name(),
-                r.1,
-                100.0 * r.0 as f64 / r.1.max(1) as f64,
-                r.2 / r.3.max(1) as f64
-            );
-        }
+        return;
+    }
+    println!("| manoeuvre | pairs | accuracy | swap ratio |\n|---|---|---|---|");
+    for (m, t) in tallies {
+        let (accuracy, swap_ratio) = of(t);
         println!(
-            "\n{contexts} contexts, {pairs} pairs at +{} s: accuracy {:.0}%, swap ratio {swap_ratio:.2}",
-            args.horizon,
+            "| {} | {} | {:.0}% | {swap_ratio:.2} |",
+            m.name(),
+            t.pairs,
             100.0 * accuracy
         );
     }
-    Ok(ExitCode::SUCCESS)
+    println!(
+        "\n{contexts} contexts, {pairs} pairs at +{} s: accuracy {:.0}%, swap ratio {swap_ratio:.2}",
+        args.horizon,
+        100.0 * accuracy
+    );
 }
 
 /// The manoeuvres' forecasts (orange) over their true sweeps (grey), side by side.

@@ -64,7 +64,7 @@ pub struct ForecastEvalArgs {
     pub json: bool,
     /// Further `node.key=value` overrides of the graph, as `run --set`, applied after the
     /// command's own: e.g. `rollout.shrink=null` samples without the residual shrink.
-    #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+    #[arg(long = "set", value_name = "TARGET=VALUE")]
     pub set: Vec<String>,
 }
 
@@ -539,33 +539,47 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
     if let Some(path) = &args.plot {
         check_picture_path("--plot", path)?;
     }
-    let scores = args.out.join("scores.json");
     let roi = args.roi.preset();
+    // By the names the graph exposes (`contracts::EVAL_FORECAST`), never its node ids.
     let mut set = vec![
-        format!("source.data={}", args.data.display()),
-        format!("files.out={}", args.out.display()),
-        format!("scores.json={}", scores.display()),
-        format!("scores.roi={roi}"),
-        "scores.print=false".into(),
-        "rollout.actions=log".into(),
-        "history.log_future=true".into(),
+        format!("data={}", args.data.display()),
+        format!("out={}", args.out.display()),
+        format!("scores_json={}", args.out.join("scores.json").display()),
+        format!("roi={roi}"),
+        "print_scores=false".into(),
+        "actions=log".into(),
+        "log_future=true".into(),
     ];
     if let Some(steps) = args.steps {
-        set.push(format!("rollout.steps={steps}"));
+        set.push(format!("steps={steps}"));
     }
     if !args.horizons.is_empty() {
         let list: Vec<String> = args.horizons.iter().map(f64::to_string).collect();
-        set.push(format!("rollout.horizons=[{}]", list.join(",")));
+        set.push(format!("horizons=[{}]", list.join(",")));
     }
     set.extend(args.set.iter().cloned());
-    let (params, mut table) =
-        crate::commands::graph_run::run_graph_for_report(&args.graph, &set, &scores)?;
-    let rollout = params
-        .iter()
-        .find(|(kind, _)| *kind == "diffusion_rollout")
-        .map(|(_, p)| p);
-    for key in ["steps", "shrink"] {
-        table[key] = rollout.map_or(serde_json::Value::Null, |p| p[key].clone());
+    let contract = &super::contracts::EVAL_FORECAST;
+    let mut graph = super::graph_run::build_bound(&args.graph, contract, &set)?;
+    let scores = graph
+        .collect::<bevworld_types::ScoreTable>("scores")
+        .map_err(super::Refused::Graph)?;
+    let sampler: Vec<(&str, serde_json::Value)> = ["steps", "shrink"]
+        .into_iter()
+        .map(|key| {
+            (
+                key,
+                graph.spec.exposed_param(key).cloned().unwrap_or_default(),
+            )
+        })
+        .collect();
+    super::graph_run::run_built(graph)?;
+    let mut table = scores
+        .take()
+        .pop()
+        .map(|table| table.0.clone())
+        .with_context(|| format!("{}: the scores sent no table", args.graph.display()))?;
+    for (key, value) in sampler {
+        table[key] = value;
     }
     if table["contexts"].as_u64() == Some(0) {
         bail!(

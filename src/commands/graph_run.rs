@@ -1,23 +1,19 @@
-//! Running a graph file from a command, with `--set` overrides, quietly: what the commands
-//! that are built on graphs (`train world-model`'s caches, `eval forecast`) share.
+//! Running a graph from a command: the command's `name=value` settings bound through the graph's
+//! `interface:` (never its node ids), the graph held to the command's contract before anything
+//! is built, and its results collected in-process from the outputs it exposes.
 
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
-use bevworld_graph::{Override, RunOptions, StopHandle};
+use bevworld_graph::{Contract, Override, ResolvedGraph, RunOptions, StopHandle, ValidatedGraph};
+use bevworld_types::ModelBundle;
 
 use crate::commands::Refused;
 use crate::registry;
 
-/// Validates, builds and runs `graph` with `set` (`node.key=value`), to the end.
-/// Each node's kind and parameters as resolved (defaults filled in).
-pub type ResolvedParams = Vec<(&'static str, serde_json::Value)>;
-
-/// Runs the graph; returns its nodes' resolved parameters and the run's report.
-pub fn run_graph(
-    graph: &Path,
-    set: &[String],
-) -> Result<(ResolvedParams, bevworld_graph::RunReport)> {
+/// Validates `graph` with `set` (`name=value` of exposed parameters, `models.b.k=value`, or a
+/// user's own `node.key=value`) and holds it to `contract`.
+pub fn validate_bound(graph: &Path, contract: &Contract, set: &[String]) -> Result<ValidatedGraph> {
     let overrides = set
         .iter()
         .map(|text| {
@@ -28,71 +24,72 @@ pub fn run_graph(
         Ok(validated) => validated,
         Err(diagnostics) => return Err(Refused::Graph(diagnostics).into()),
     };
-    let params: ResolvedParams = validated
-        .spec
-        .nodes
-        .iter()
-        .map(|n| (n.kind.name, n.params.clone()))
-        .collect();
-    let built = match validated.build() {
-        Ok(built) => built,
-        Err(diagnostics) => return Err(Refused::Graph(diagnostics).into()),
-    };
+    if let Err(diagnostics) = validated.spec.check_contract(contract) {
+        return Err(Refused::Graph(diagnostics).into());
+    }
+    Ok(validated)
+}
+
+/// As `validate_bound`, then built: the models loaded, the nodes made.
+pub fn build_bound(graph: &Path, contract: &Contract, set: &[String]) -> Result<ResolvedGraph> {
+    match validate_bound(graph, contract, set)?.build() {
+        Ok(built) => Ok(built),
+        Err(diagnostics) => Err(Refused::Graph(diagnostics).into()),
+    }
+}
+
+/// Runs a built graph to the end, quietly.
+pub fn run_built(graph: ResolvedGraph) -> Result<bevworld_graph::RunReport> {
+    let file = graph.spec.file.clone();
     let outcome = bevworld_graph::run(
-        built,
+        graph,
         RunOptions {
             stop: StopHandle::new(),
             observer: None,
         },
     );
     if let Some(error) = outcome.error {
-        bail!("{}: {error}", graph.display());
+        bail!("{file}: {error}");
     }
-    Ok((params, outcome.report))
+    Ok(outcome.report)
 }
 
-/// The world model a graph's `diffusion_rollout` node loads, read from its config: the facts a
-/// command needs of the model (its condition frames, its frame interval, how far it forecasts)
-/// come from there, never from a constant of the command's.
-pub fn world_model_of(graph: &Path) -> Result<bevworld_world_model::WorldModelConfig> {
-    let validated = match bevworld_graph::load(graph, &registry::registry(), &[]) {
-        Ok(validated) => validated,
-        Err(diagnostics) => return Err(Refused::Graph(diagnostics).into()),
-    };
-    let model = validated
-        .spec
-        .nodes
-        .iter()
-        .find(|n| n.kind.name == "diffusion_rollout")
-        .and_then(|n| n.params.get("model"))
+/// The model bundle the graph's exposed `model` parameter names, as checked.
+pub fn bundle_of(validated: &ValidatedGraph) -> Result<(String, ModelBundle)> {
+    let spec = &validated.spec;
+    let name = spec
+        .exposed_param("model")
         .and_then(serde_json::Value::as_str)
-        .map(Path::new)
-        .with_context(|| {
-            format!(
-                "{}: no diffusion_rollout node names the world model",
-                graph.display()
-            )
-        })?;
-    bevworld_world_model::WorldModelConfig::from_yaml_file(model)
-        .with_context(|| format!("the world model of {}", graph.display()))
+        .with_context(|| format!("{}: the graph exposes no `model` bundle name", spec.file))?;
+    let bundle = spec
+        .models
+        .bundles()
+        .get(name)
+        .with_context(|| format!("{}: no model bundle '{name}'", spec.file))?;
+    Ok((name.to_string(), ModelBundle::from_json(bundle)?))
 }
 
-/// Runs the graph, whose sink writes the JSON file `report`, and returns the resolved
-/// parameters and that file parsed. An old `report` is removed first, so that a run that
-/// writes none is an error, not a stale table.
-pub fn run_graph_for_report(
+/// The name of the bundle the graph's exposed `model` parameter names: what a command's
+/// `models.<name>.*` settings address.
+pub fn bundle_name(graph: &Path, contract: &Contract) -> Result<String> {
+    Ok(bundle_of(&validate_bound(graph, contract, &[])?)?.0)
+}
+
+/// The world model the graph's `model` bundle holds, read from its config: the facts a command
+/// needs of the model (its condition frames, its frame interval, how far it forecasts) come
+/// from there, never from a constant of the command's.
+pub fn world_model_of(
     graph: &Path,
-    set: &[String],
-    report: &Path,
-) -> Result<(ResolvedParams, serde_json::Value)> {
-    if report.exists() {
-        std::fs::remove_file(report)
-            .with_context(|| format!("removing the old {}", report.display()))?;
-    }
-    let (params, _) = run_graph(graph, set)?;
-    let table = serde_json::from_slice(
-        &std::fs::read(report).with_context(|| format!("reading {}", report.display()))?,
-    )
-    .with_context(|| format!("parsing {}", report.display()))?;
-    Ok((params, table))
+    contract: &Contract,
+) -> Result<bevworld_world_model::WorldModelConfig> {
+    let validated = validate_bound(graph, contract, &[])?;
+    let (name, bundle) = bundle_of(&validated)?;
+    let files = bundle.world_model.with_context(|| {
+        format!(
+            "{}: model bundle '{name}' has no world model",
+            graph.display()
+        )
+    })?;
+    bevworld_world_model::WorldModelConfig::from_yaml_file(&files.config)
+        .with_context(|| format!("the world model of {}", graph.display()))
 }

@@ -7,6 +7,8 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use bevworld_world_model_train::CacheConfig;
+
+use crate::commands::{contracts, graph_run};
 use bevworld_world_model_train::config::{KEYFRAMES_INDEX, SWEEPS_INDEX};
 
 /// The graph the caches are exported with.
@@ -28,19 +30,24 @@ pub fn ensure(cache: &CacheConfig, tokenizer_model: &Path, tokenizer_weights: &P
             if sweeps { "every sweep" } else { "keyframes" },
             cache.latents.join(index).display()
         );
+        let bundle = graph_run::bundle_name(Path::new(EXPORT_GRAPH), &contracts::LATENT_CACHE)?;
         let set = [
-            format!("source.data={}", cache.synth.dir.display()),
-            format!("source.sweeps={sweeps}"),
-            format!("encode.model={}", tokenizer_model.display()),
-            format!("encode.weights={}", tokenizer_weights.display()),
-            format!("export.out={}", cache.latents.display()),
-            format!("export.index={index}"),
+            format!("data={}", cache.synth.dir.display()),
+            format!("sweeps={sweeps}"),
+            format!(
+                "models.{bundle}.tokenizer.config={}",
+                tokenizer_model.display()
+            ),
+            format!(
+                "models.{bundle}.tokenizer.weights={}",
+                tokenizer_weights.display()
+            ),
+            format!("out={}", cache.latents.display()),
+            format!("index={index}"),
         ];
-        run_export(&set)?;
+        let graph =
+            graph_run::build_bound(Path::new(EXPORT_GRAPH), &contracts::LATENT_CACHE, &set)?;
+        graph_run::run_built(graph)?;
     }
     Ok(())
-}
-
-fn run_export(set: &[String]) -> Result<()> {
-    crate::commands::graph_run::run_graph(Path::new(EXPORT_GRAPH), set).map(|_| ())
 }

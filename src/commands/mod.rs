@@ -1,5 +1,6 @@
 //! Subcommands that are tools rather than graphs, and the exit-code rule they share.
 
+pub mod contracts;
 pub mod control;
 pub mod eval;
 pub mod graph_run;

@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use crate::commands::eval::RoiName;
@@ -37,7 +37,7 @@ pub struct TokenizerEvalArgs {
     pub json: bool,
     /// Further `node.key=value` overrides of the graph, as `run --set`, applied after the
     /// command's own: e.g. `source.max_frames=8`.
-    #[arg(long = "set", value_name = "NODE.KEY=VALUE")]
+    #[arg(long = "set", value_name = "TARGET=VALUE")]
     pub set: Vec<String>,
 }
 
@@ -50,37 +50,50 @@ pub fn run(args: &TokenizerEvalArgs) -> Result<ExitCode> {
     {
         bail!("--weights {}: no such file", weights.display());
     }
-    let summary_path = args.out.join("summary.json");
-    let out = args.out.display();
+    // By the names the graph exposes (`contracts::EVAL_TOKENIZER`), never its node ids.
+    let contract = &super::contracts::EVAL_TOKENIZER;
     let mut set = vec![
-        format!("source.data={}", args.data.display()),
-        format!("metrics.csv={}", args.out.join("metrics.csv").display()),
-        format!("metrics.json={}", summary_path.display()),
-        format!("metrics.roi={}", args.roi.preset()),
+        format!("data={}", args.data.display()),
+        format!("metrics_csv={}", args.out.join("metrics.csv").display()),
+        format!("roi={}", args.roi.preset()),
+        format!("out={}", args.out.display()),
     ];
-    for sink in [
-        "inputs",
-        "reconstructions",
-        "pairs",
-        "input_sweep",
-        "rendered_sweep",
-    ] {
-        set.push(format!("{sink}.out={out}"));
-    }
     if let Some(weights) = &args.weights {
-        set.push(format!("encode.weights={}", weights.display()));
-        set.push(format!("render.weights={}", weights.display()));
+        let bundle = super::graph_run::bundle_name(&args.graph, contract)?;
+        set.push(format!(
+            "models.{bundle}.tokenizer.weights={}",
+            weights.display()
+        ));
     }
     set.extend(args.set.iter().cloned());
-    let (params, mut table) =
-        crate::commands::graph_run::run_graph_for_report(&args.graph, &set, &summary_path)?;
+    let validated = super::graph_run::validate_bound(&args.graph, contract, &set)?;
+    let weights = super::graph_run::bundle_of(&validated)?
+        .1
+        .tokenizer
+        .map(|tokenizer| tokenizer.weights);
+    let mut graph = validated.build().map_err(super::Refused::Graph)?;
+    let summary = graph
+        .collect::<bevworld_types::ScoreTable>("summary")
+        .map_err(super::Refused::Graph)?;
+    super::graph_run::run_built(graph)?;
+    let mut table = summary
+        .take()
+        .pop()
+        .map(|table| table.0.clone())
+        .with_context(|| format!("{}: the metrics sent no summary", args.graph.display()))?;
     if table["frames"].as_u64() == Some(0) {
         bail!("no keyframe of {} was scored", args.data.display());
     }
-    table["weights"] = params
-        .iter()
-        .find(|(kind, _)| *kind == "encode")
-        .map_or(serde_json::Value::Null, |(_, p)| p["weights"].clone());
+    table["weights"] = weights.map_or(serde_json::Value::Null, serde_json::Value::String);
+    // The summary file, as before: the table with the weights it was measured on.
+    let summary_path = args.out.join("summary.json");
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    bevworld_graph::io::write_atomic_now(
+        &summary_path,
+        serde_json::to_string_pretty(&table)?.as_bytes(),
+    )
+    .with_context(|| format!("writing {}", summary_path.display()))?;
     if args.json {
         println!("{}", serde_json::to_string(&table)?);
         return Ok(ExitCode::SUCCESS);

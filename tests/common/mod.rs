@@ -45,9 +45,9 @@ pub fn export_latents(data: &Path, out: &Path) -> Vec<serde_json::Value> {
         "run".into(),
         "configs/graphs/export_latents.yaml".into(),
         "--set".into(),
-        format!("source.data={}", data.display()),
+        format!("data={}", data.display()),
         "--set".into(),
-        format!("export.out={}", out.display()),
+        format!("out={}", out.display()),
     ]);
     assert!(output.status.success(), "{}", text(&output));
     let index = read_json(&out.join("index.json"));
@@ -64,22 +64,15 @@ pub fn text(output: &Output) -> String {
     )
 }
 
-/// `--set` arguments sending every file sink of `reconstruct.yaml` to `out`.
+/// `--set` arguments sending every file `reconstruct.yaml` writes to `out`, by the names it
+/// exposes.
 pub fn reconstruct_outputs(out: &Path) -> Vec<String> {
-    let mut args = Vec::new();
-    for sink in [
-        "inputs",
-        "reconstructions",
-        "pairs",
-        "input_sweep",
-        "rendered_sweep",
-    ] {
-        args.push("--set".into());
-        args.push(format!("{sink}.out={}", out.display()));
-    }
-    args.push("--set".into());
-    args.push(format!("metrics.csv={}", out.join("metrics.csv").display()));
-    args
+    vec![
+        "--set".into(),
+        format!("out={}", out.display()),
+        "--set".into(),
+        format!("metrics_csv={}", out.join("metrics.csv").display()),
+    ]
 }
 
 /// Every file under `dir`, relative to it, sorted.

@@ -25,10 +25,11 @@ use std::sync::Arc;
 use crate::agents::{AgentSums, SplitTruth, split_truth};
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink,
+    Figures, Inputs, KindSpec, Models, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{
-    BevFeatures, ForecastMethod, LatentStats, LatentStatsFile, RenderedFuture, SensorFrame,
+    BevFeatures, ForecastMethod, LatentStats, LatentStatsFile, RenderedFuture, ScoreTable,
+    SensorFrame,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -38,6 +39,7 @@ use crate::reconstruction_node::{score_images, score_lidar};
 
 // The node's ports, each named once (`bevworld_graph::Port`).
 const RENDERED: Port<RenderedFuture> = Port::new("rendered");
+const TABLE: Port<ScoreTable> = Port::new("table");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -45,9 +47,10 @@ pub struct ForecastMetricsParams {
     /// ROI preset for the Chamfer distance: `4docc` or `vidar`.
     #[serde(default = "default_roi")]
     pub roi: String,
-    /// The tokenizer's statistics file, for the standardised latent L1.
+    /// A bundle of the graph's `models:` section, whose tokenizer's latent statistics
+    /// standardise the latent L1; absent, the latents are not scored.
     #[serde(default)]
-    pub latent_stats: Option<PathBuf>,
+    pub model: Option<String>,
     /// Also write the table as JSON here.
     #[serde(default)]
     pub json: Option<PathBuf>,
@@ -422,8 +425,8 @@ pub fn markdown_of(table: &serde_json::Value) -> String {
     text
 }
 
-impl Sink for ForecastMetrics {
-    fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
+impl Task for ForecastMetrics {
+    fn process(&mut self, inputs: &Inputs, _: &mut Outputs) -> Result<(), NodeError> {
         let rendered = inputs.get(&RENDERED)?;
         let view = &rendered.view;
         let (horizon_s, ahead) = (view.horizon_s, view.frames_ahead);
@@ -498,7 +501,7 @@ impl Sink for ForecastMetrics {
         Ok(())
     }
 
-    fn finish(&mut self) -> Result<(), NodeError> {
+    fn finish(&mut self, out: &mut Outputs) -> Result<(), NodeError> {
         if let Some((stats, path)) = self.stats.clone() {
             let groups = std::mem::take(&mut self.latents);
             for ((_, horizon_us), group) in groups {
@@ -554,6 +557,9 @@ impl Sink for ForecastMetrics {
                 .map_err(|e| NodeError::fatal(format!("{}: {e}", path.display())))?;
             crate::report_file::write_report(path, &text)?;
         }
+        if out.is_connected(&TABLE) {
+            out.send(&TABLE, ScoreTable(self.table()))?;
+        }
         Ok(())
     }
 
@@ -582,18 +588,36 @@ impl Sink for ForecastMetrics {
     }
 }
 
-fn build(params: &ForecastMetricsParams) -> Result<ForecastMetrics, ParamError> {
-    let roi = Roi::preset(&params.roi).ok_or_else(|| {
+/// The bundle's latent statistics, with the file they came from.
+fn latent_stats(bundle: &serde_json::Value) -> Result<(LatentStats, PathBuf), ParamError> {
+    let path = bevworld_types::ModelBundle::from_json(bundle)
+        .map_err(|error| ParamError::field("model", error.to_string()))?
+        .tokenizer
+        .and_then(|tokenizer| tokenizer.latent_stats_path())
+        .ok_or_else(|| {
+            ParamError::field("model", "the bundle's tokenizer has no latent statistics")
+        })?;
+    LatentStatsFile::load(&path)
+        .map(|file| (file.stats, path))
+        .map_err(|error| ParamError::field("model", error.to_string()))
+}
+
+fn roi_of(params: &ForecastMetricsParams) -> Result<Roi, ParamError> {
+    Roi::preset(&params.roi).ok_or_else(|| {
         ParamError::field("roi", format!("unknown preset '{}'", params.roi))
             .with_accepted("4docc, vidar")
-    })?;
+    })
+}
+
+fn build(params: &ForecastMetricsParams, models: &Models) -> Result<ForecastMetrics, ParamError> {
+    let roi = roi_of(params)?;
     let stats = params
-        .latent_stats
+        .model
         .as_ref()
-        .map(|path| {
-            LatentStatsFile::load(path)
-                .map(|file| (file.stats, path.clone()))
-                .map_err(|error| ParamError::field("latent_stats", error.to_string()))
+        .map(|name| {
+            models
+                .load(name, latent_stats)
+                .map(|shared| (*shared).clone())
         })
         .transpose()?;
     Ok(ForecastMetrics {
@@ -613,14 +637,23 @@ fn build(params: &ForecastMetricsParams) -> Result<ForecastMetrics, ParamError> 
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register_checked(
-        KindSpec::sink(
+    registry.register_with_models(
+        KindSpec::task(
             "forecast_metrics",
-            "Chamfer, PSNR, SSIM and latent L1 of rendered forecasts per horizon and method, beside the raw-point baselines",
+            "Chamfer, PSNR, SSIM and latent L1 of rendered forecasts per horizon and method, beside the raw-point baselines; the table on `table` at the end",
         )
-        .input(RENDERED.spec()),
-        |params: &ForecastMetricsParams| build(params).map(|_| ()),
-        |params: ForecastMetricsParams| Ok(Node::Sink(Box::new(build(&params)?))),
+        .input(RENDERED.spec())
+        .output(TABLE.spec()),
+        |params: &ForecastMetricsParams, models: &Models| {
+            roi_of(params)?;
+            match &params.model {
+                Some(name) => models.require(name, &["tokenizer"]).map(|_| ()),
+                None => Ok(()),
+            }
+        },
+        |params: ForecastMetricsParams, models: &Models| {
+            Ok(Node::Task(Box::new(build(&params, models)?)))
+        },
     );
 }
 
@@ -632,11 +665,11 @@ mod tests {
     fn the_table_gives_each_scenes_mean_and_the_spread_of_those_means_by_hand() {
         let params = ForecastMetricsParams {
             roi: "4docc".into(),
-            latent_stats: None,
+            model: None,
             json: None,
             print: false,
         };
-        let mut metrics = build(&params).expect("params");
+        let mut metrics = build(&params, &bevworld_graph::Models::none()).expect("params");
         // Scene a: 1 and 3 (mean 2); scene b: 4 (mean 4). Over contexts: 8/3.
         for (scene, value) in [("a", 1.0), ("a", 3.0), ("b", 4.0)] {
             metrics.cell(1.0, 2, "model").add_chamfer(scene, value);

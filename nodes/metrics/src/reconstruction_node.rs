@@ -11,9 +11,9 @@
 use std::path::PathBuf;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, ParamError, Port, Registry, Sink,
+    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
-use bevworld_types::{ImageSet, PointCloud, SensorFrame};
+use bevworld_types::{ImageSet, PointCloud, ScoreTable, SensorFrame};
 use image::imageops::FilterType;
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +24,7 @@ use crate::image::{ImageMetricError, Planes, psnr, rgb_planes, ssim};
 const FRAME: Port<SensorFrame> = Port::new("frame");
 const IMAGES: Port<ImageSet> = Port::new("images");
 const LIDAR: Port<PointCloud> = Port::new("lidar");
+const TABLE: Port<ScoreTable> = Port::new("table");
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -161,8 +162,8 @@ pub struct ReconstructionMetrics {
     scores: Vec<FrameScores>,
 }
 
-impl Sink for ReconstructionMetrics {
-    fn consume(&mut self, inputs: &Inputs) -> Result<(), NodeError> {
+impl Task for ReconstructionMetrics {
+    fn process(&mut self, inputs: &Inputs, _: &mut Outputs) -> Result<(), NodeError> {
         let frame = inputs.get(&FRAME)?;
         let images = inputs.get(&IMAGES)?;
         let lidar = inputs.get(&LIDAR)?;
@@ -181,7 +182,7 @@ impl Sink for ReconstructionMetrics {
         Ok(())
     }
 
-    fn finish(&mut self) -> Result<(), NodeError> {
+    fn finish(&mut self, out: &mut Outputs) -> Result<(), NodeError> {
         if let Some(path) = &self.csv {
             let mut text = String::from(
                 "frame_token,scene,psnr_db,ssim,chamfer_m2,truth_non_finite_points_dropped\n",
@@ -203,6 +204,9 @@ impl Sink for ReconstructionMetrics {
             let text = serde_json::to_string_pretty(&summary(&self.scores))
                 .map_err(|e| NodeError::fatal(format!("writing {}: {e}", path.display())))?;
             crate::report_file::write_report(path, &text)?;
+        }
+        if out.is_connected(&TABLE) {
+            out.send(&TABLE, ScoreTable(summary(&self.scores)))?;
         }
         Ok(())
     }
@@ -327,17 +331,18 @@ fn roi_of(params: &ReconstructionMetricsParams) -> Result<Roi, ParamError> {
 
 pub fn register(registry: &mut Registry) {
     registry.register_checked(
-        KindSpec::sink(
+        KindSpec::task(
             "reconstruction_metrics",
-            "camera PSNR/SSIM and LiDAR Chamfer of a rendered frame against its input frame",
+            "camera PSNR/SSIM and LiDAR Chamfer of a rendered frame against its input frame; the summary on `table` at the end",
         )
         .input(FRAME.spec())
         .input(IMAGES.spec())
-        .input(LIDAR.spec()),
+        .input(LIDAR.spec())
+        .output(TABLE.spec()),
         |params: &ReconstructionMetricsParams| roi_of(params).map(|_| ()),
         |params: ReconstructionMetricsParams| {
             let roi = roi_of(&params)?;
-            Ok(Node::Sink(Box::new(ReconstructionMetrics {
+            Ok(Node::Task(Box::new(ReconstructionMetrics {
                 roi,
                 csv: params.csv,
                 json: params.json,

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use bevworld_graph::{Header, Inputs, Instant, Message, Node, Registry, Sink};
+use bevworld_graph::{Header, Inputs, Instant, Message, Node, Outputs, Registry, Task};
 use bevworld_metrics::Roi;
 use bevworld_metrics::reconstruction_node::score_frame;
 use bevworld_sensors::{Dataset, DatasetOptions};
@@ -41,7 +41,7 @@ fn inputs_as_render(frame: &SensorFrame) -> ImageSet {
     }
 }
 
-fn build(params: serde_json::Value) -> Result<Box<dyn Sink>, String> {
+fn build(params: serde_json::Value) -> Result<Box<dyn Task>, String> {
     let mut registry = Registry::new();
     bevworld_metrics::register(&mut registry);
     match registry
@@ -50,8 +50,8 @@ fn build(params: serde_json::Value) -> Result<Box<dyn Sink>, String> {
         .build(&params)
     {
         Ok(node) => match node {
-            Node::Sink(sink) => Ok(sink),
-            _ => Err("not a sink".into()),
+            Node::Task(task) => Ok(task),
+            _ => Err("not a task".into()),
         },
         Err(error) => Err(format!(
             "{}: {}",
@@ -159,7 +159,8 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
             Some(Message::from_shared(header, Arc::clone(&frame.lidar))),
         ],
     );
-    sink.consume(&inputs).expect("consumed");
+    sink.process(&inputs, &mut Outputs::detached(&["table"]))
+        .expect("consumed");
     let figures = sink.report();
     assert_eq!(figures.get("frames_scored"), Some(&1.0));
     assert_eq!(figures.get("psnr_db_mean"), Some(&100.0));
@@ -185,7 +186,8 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
             Some(Message::new(header, empty)),
         ],
     );
-    sink.consume(&inputs).expect("consumed");
+    sink.process(&inputs, &mut Outputs::detached(&["table"]))
+        .expect("consumed");
     let figures = sink.report();
     assert_eq!(figures.get("empty_clouds"), Some(&1.0));
     assert_eq!(figures.get("truth_non_finite_points_dropped"), Some(&7.0));
@@ -196,7 +198,8 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     );
 
     // Both files name the frame's scene; the summary holds the two frames as one scene.
-    sink.finish().expect("written");
+    sink.finish(&mut Outputs::detached(&["table"]))
+        .expect("written");
     let rows = std::fs::read_to_string(&csv).expect("csv");
     let lines: Vec<&str> = rows.lines().collect();
     assert_eq!(lines.len(), 3, "{rows}");
@@ -224,7 +227,10 @@ fn a_summary_that_cannot_be_written_is_an_error_naming_its_path() {
     std::fs::write(&blocker, "a file where a folder should be").expect("written");
     let json = blocker.join("summary.json");
     let mut sink = build(serde_json::json!({"json": json})).expect("node");
-    let error = sink.finish().expect_err("refused").to_string();
+    let error = sink
+        .finish(&mut Outputs::detached(&["table"]))
+        .expect_err("refused")
+        .to_string();
     assert!(error.contains("not-a-folder"), "{error}");
 }
 

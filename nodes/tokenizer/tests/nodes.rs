@@ -7,7 +7,7 @@ use common::nuscenes_frame;
 
 use std::path::PathBuf;
 
-use bevworld_graph::{Header, Inputs, Instant, Message, Node, Outputs, Registry, Task};
+use bevworld_graph::{Header, Inputs, Instant, Message, Models, Node, Outputs, Registry, Task};
 use bevworld_pillarize::{Limits, Pillarizer};
 use bevworld_types::{BevFeatures, BevGrid, FrameMeta};
 
@@ -26,8 +26,17 @@ fn task(kind: &str) -> Box<dyn Task> {
         std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"),
     )
     .join("../../configs/models/tokenizer-tiny.yaml");
-    let params = serde_json::json!({"model": model, "weights": "untrained"});
-    match registry.get(kind).expect("registered").build(&params) {
+    // The graph's `models:` section, with the one bundle the node names.
+    let models = Models::new(std::collections::BTreeMap::from([(
+        "tiny".to_string(),
+        serde_json::json!({"tokenizer": {"config": model, "weights": "untrained"}}),
+    )]));
+    let params = serde_json::json!({"model": "tiny"});
+    match registry
+        .get(kind)
+        .expect("registered")
+        .build_with(&params, &models)
+    {
         Ok(node) => match node {
             Node::Task(task) => task,
             _ => panic!("{kind} is not a task"),

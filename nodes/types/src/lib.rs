@@ -20,11 +20,13 @@ pub mod frame;
 pub mod latent_stats;
 pub mod latent_stats_file;
 pub mod manoeuvre;
+pub mod model_bundle;
 pub mod object_box;
 pub mod pillars;
 pub mod point_cloud;
 pub mod pose;
 pub mod problem;
+pub mod score_table;
 pub mod splitmix;
 
 pub use action::EgoAction;
@@ -42,9 +44,11 @@ pub use latent_stats::{
 };
 pub use latent_stats_file::{LatentStatsFile, StatsFileError, stats_path_for};
 pub use manoeuvre::Manoeuvre;
+pub use model_bundle::{ModelBundle, TokenizerFiles, WorldModelFiles};
 pub use object_box::{MOVING_SPEED_MPS, ObjectBox, PointClass, classify_point};
 pub use pillars::{GridError, PILLAR_FEATURES, PillarGrid, PillarStats, Pillars};
 pub use point_cloud::{LidarPoint, PointCloud};
 pub use pose::{Pose, pose_from_translation_quaternion};
 pub use problem::ConfigProblem;
+pub use score_table::ScoreTable;
 pub use splitmix::SplitMix64;

@@ -6,15 +6,19 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use bevworld_graph::{Models, ParamError};
+use bevworld_types::LatentStatsFile;
 use bevworld_types::{
     BevFeatures, BevGrid, CameraChannel, CameraImage, EgoAction, Forecast, ForecastHorizon,
     ForecastMethod, FrameMeta, Intrinsics, LatentWindow, LidarPoint, PointCloud, Pose, SensorFrame,
 };
 use bevworld_world_model::ResidualShrink;
+use bevworld_world_model::WorldModelConfig;
 use bevworld_world_model::nodes::diffusion_rollout::{self, DiffusionRolloutParams};
 use bevworld_world_model::nodes::future_views::FutureViews;
 use bevworld_world_model::nodes::latent_history::{HistoryShape, LatentHistory};
-use bevworld_world_model::nodes::model_params::WorldModelParams;
+use bevworld_world_model::nodes::model_params::{WorldModelParams, check_pairing};
+use bevworld_world_model::weights::load_sealed_meta;
 use glam::DVec3;
 
 fn repo() -> PathBuf {
@@ -228,10 +232,8 @@ fn a_history_that_never_fills_says_how_many_frames_it_got_and_how_many_a_forecas
 fn rollout_params(actions: &str, horizons: &[f64]) -> DiffusionRolloutParams {
     DiffusionRolloutParams {
         model: WorldModelParams {
-            model: repo().join("configs/models/world-model-tiny.yaml"),
-            weights: repo().join("nodes/world_model/weights/world-model-tiny.bpk"),
+            model: "tiny".into(),
         },
-        latent_stats: repo().join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"),
         horizons: horizons.to_vec(),
         steps: 1,
         eta: 0.0,
@@ -244,8 +246,43 @@ fn rollout_params(actions: &str, horizons: &[f64]) -> DiffusionRolloutParams {
     }
 }
 
+/// A graph's `models:` section with one bundle, `tiny`: the shipped tokenizer and a world
+/// model's config and weights.
+fn bundle(config: &std::path::Path, weights: &std::path::Path) -> Models {
+    Models::new(std::collections::BTreeMap::from([(
+        "tiny".to_string(),
+        serde_json::json!({
+            "tokenizer": {
+                "config": repo().join("configs/models/tokenizer-tiny.yaml"),
+                "weights": repo().join("nodes/tokenizer/weights/tokenizer-tiny.bpk"),
+            },
+            "world_model": {"config": config, "weights": weights},
+        }),
+    )]))
+}
+
+fn shipped_config() -> PathBuf {
+    repo().join("configs/models/world-model-tiny.yaml")
+}
+
+fn shipped_weights() -> PathBuf {
+    repo().join("nodes/world_model/weights/world-model-tiny.bpk")
+}
+
+fn shipped() -> Models {
+    bundle(&shipped_config(), &shipped_weights())
+}
+
+fn plan(params: &DiffusionRolloutParams) -> Result<diffusion_rollout::RolloutPlan, ParamError> {
+    diffusion_rollout::plan(params, &shipped())
+}
+
 fn refusal(params: &DiffusionRolloutParams) -> (String, String) {
-    let Err(error) = diffusion_rollout::plan(params) else {
+    refusal_in(params, &shipped())
+}
+
+fn refusal_in(params: &DiffusionRolloutParams, models: &Models) -> (String, String) {
+    let Err(error) = diffusion_rollout::plan(params, models) else {
         panic!("{params:?} was accepted");
     };
     (
@@ -256,7 +293,7 @@ fn refusal(params: &DiffusionRolloutParams) -> (String, String) {
 
 #[test]
 fn the_rollout_refuses_unknown_manoeuvres_and_horizons_it_does_not_make() {
-    assert!(diffusion_rollout::plan(&rollout_params("left", &[0.5, 1.0, 3.0])).is_ok());
+    assert!(plan(&rollout_params("left", &[0.5, 1.0, 3.0])).is_ok());
     let (message, accepted) = refusal(&rollout_params("sideways", &[0.5]));
     assert!(
         message.starts_with("actions") && message.contains("sideways"),
@@ -286,10 +323,15 @@ fn the_rollout_refuses_unknown_manoeuvres_and_horizons_it_does_not_make() {
     list.action_list = Some(vec![[8.0, 0.0]; 2]);
     assert!(refusal(&list).0.contains("needs 6"));
     list.action_list = Some(vec![[8.0, 0.1]; 6]);
-    assert!(diffusion_rollout::plan(&list).is_ok());
-    let mut other_stats = rollout_params("keep", &[1.0]);
-    other_stats.latent_stats = repo().join("nodes/world_model/weights/world-model-tiny.meta.json");
-    assert!(refusal(&other_stats).0.starts_with("latent_stats"));
+    assert!(plan(&list).is_ok());
+    let mut no_bundle = rollout_params("keep", &[1.0]);
+    no_bundle.model.model = "tyni".into();
+    let (message, accepted) = refusal(&no_bundle);
+    assert!(
+        message.starts_with("model") && message.contains("'tyni'"),
+        "{message}"
+    );
+    assert!(accepted.contains("tiny"), "{accepted}");
     let mut steps = rollout_params("keep", &[1.0]);
     steps.steps = 0;
     assert!(refusal(&steps).0.starts_with("steps"));
@@ -338,11 +380,10 @@ fn the_rollout_refuses_metadata_and_weights_changed_after_they_were_written() {
         let (weights, meta_path) = shipped_copy(name, |meta| {
             meta["action_stats"][field][0] = serde_json::json!(value);
         });
-        let mut params = rollout_params("keep", &[1.0]);
-        params.model.weights = weights;
-        let (message, _) = refusal(&params);
+        let params = rollout_params("keep", &[1.0]);
+        let (message, _) = refusal_in(&params, &bundle(&shipped_config(), &weights));
         assert!(
-            message.starts_with("weights") && message.contains(says),
+            message.contains("world_model.weights") && message.contains(says),
             "{name}: {message}"
         );
         assert!(
@@ -358,9 +399,8 @@ fn the_rollout_refuses_metadata_and_weights_changed_after_they_were_written() {
         *b = 0x3f;
     }
     std::fs::write(&weights, bytes).expect("write");
-    let mut params = rollout_params("keep", &[1.0]);
-    params.model.weights = weights.clone();
-    let (message, _) = refusal(&params);
+    let params = rollout_params("keep", &[1.0]);
+    let (message, _) = refusal_in(&params, &bundle(&shipped_config(), &weights));
     assert!(
         message.contains("were changed after they were written")
             && message.contains(&weights.display().to_string()),
@@ -371,11 +411,11 @@ fn the_rollout_refuses_metadata_and_weights_changed_after_they_were_written() {
     let (weights, meta_path) = shipped_copy("tokenizer", |meta| {
         meta["tokenizer_weights_hash"] = serde_json::json!("0000000000000000");
     });
-    let mut params = rollout_params("keep", &[1.0]);
-    params.model.weights = weights;
-    let (message, _) = refusal(&params);
+    let params = rollout_params("keep", &[1.0]);
+    let (message, _) = refusal_in(&params, &bundle(&shipped_config(), &weights));
     assert!(
-        message.starts_with("weights") && message.contains(&meta_path.display().to_string()),
+        message.contains("world_model.weights")
+            && message.contains(&meta_path.display().to_string()),
         "{message}"
     );
     // Whitespace and key order change nothing that is sealed.
@@ -383,9 +423,8 @@ fn the_rollout_refuses_metadata_and_weights_changed_after_they_were_written() {
     let compact: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&meta_path).expect("meta")).expect("json");
     std::fs::write(&meta_path, serde_json::to_vec(&compact).expect("json")).expect("write");
-    let mut params = rollout_params("keep", &[1.0]);
-    params.model.weights = weights;
-    assert!(diffusion_rollout::plan(&params).is_ok());
+    let params = rollout_params("keep", &[1.0]);
+    assert!(diffusion_rollout::plan(&params, &bundle(&shipped_config(), &weights)).is_ok());
 }
 
 #[test]
@@ -402,7 +441,7 @@ fn the_rollout_refuses_what_would_forecast_nonsense_and_names_a_horizon_as_its_f
     }
     let mut params = rollout_params("keep", &[1.0]);
     params.eta = 1.0;
-    assert!(diffusion_rollout::plan(&params).is_ok(), "DDPM's η = 1");
+    assert!(plan(&params).is_ok(), "DDPM's η = 1");
     // Row 5: physically impossible actions are refused; unusual ones are forecast.
     for (pair, says) in [
         ([1e300, 0.0], "speed"),
@@ -425,7 +464,7 @@ fn the_rollout_refuses_what_would_forecast_nonsense_and_names_a_horizon_as_its_f
     let mut unusual = rollout_params("list", &[1.0]);
     unusual.action_list = Some(vec![[0.0, 0.0]; 6]);
     assert!(
-        diffusion_rollout::plan(&unusual).is_ok(),
+        plan(&unusual).is_ok(),
         "standing still is outside the training range, not impossible"
     );
     // Row 6: statistics of 3 channels for a 4-channel latent.
@@ -441,16 +480,37 @@ fn the_rollout_refuses_what_would_forecast_nonsense_and_names_a_horizon_as_its_f
     }
     let three = dir.join("three.stats.json");
     std::fs::write(&three, serde_json::to_vec(&stats).expect("json")).expect("write");
-    let mut params = rollout_params("keep", &[1.0]);
-    params.latent_stats = three;
-    let (message, _) = refusal(&params);
+    let config = WorldModelConfig::from_yaml_file(&shipped_config()).expect("config");
+    let meta = load_sealed_meta(&shipped_weights()).expect("meta").meta;
+    let stats = LatentStatsFile::load(&three).expect("stats");
+    let tokenizer = (
+        meta.tokenizer_model.clone(),
+        meta.tokenizer_weights_hash.clone(),
+    );
+    let error = check_pairing(&config, &meta, (&tokenizer.0, &tokenizer.1), &stats)
+        .expect_err("3 channels");
+    assert_eq!(error.field.as_deref(), Some("tokenizer.latent_stats"));
+    assert!(error.message.contains("3 channels"), "{}", error.message);
+    // The shipped pair belongs together; a world model of another tokenizer does not.
+    let shipped_stats =
+        LatentStatsFile::load(&repo().join("nodes/tokenizer/weights/tokenizer-tiny.stats.json"))
+            .expect("stats");
+    assert!(check_pairing(&config, &meta, (&tokenizer.0, &tokenizer.1), &shipped_stats).is_ok());
+    let error = check_pairing(
+        &config,
+        &meta,
+        (&tokenizer.0, "0123456789abcdef"),
+        &shipped_stats,
+    )
+    .expect_err("another tokenizer");
+    assert_eq!(error.field.as_deref(), Some("world_model.weights"));
     assert!(
-        message.starts_with("latent_stats") && message.contains("3 channels"),
-        "{message}"
+        error.message.contains("0123456789abcdef"),
+        "{}",
+        error.message
     );
     // Row 13: a horizon a hair off a frame is that frame, by name too.
-    let plan =
-        diffusion_rollout::plan(&rollout_params("keep", &[0.5000000001, 3.0])).expect("plan");
+    let plan = plan(&rollout_params("keep", &[0.5000000001, 3.0])).expect("plan");
     assert_eq!(plan.horizons, vec![(0.5, 1), (3.0, 6)]);
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -460,7 +520,7 @@ fn the_rollout_refuses_a_shrink_it_cannot_apply() {
     let shrink = |tau: f64, fade_s: f64| Some(ResidualShrink { tau, fade_s });
     let mut params = rollout_params("keep", &[1.0]);
     params.shrink = shrink(0.25, 3.0);
-    assert!(diffusion_rollout::plan(&params).is_ok());
+    assert!(plan(&params).is_ok());
     params.shrink = shrink(-0.25, 3.0);
     let (message, _) = refusal(&params);
     assert!(
@@ -485,17 +545,17 @@ fn the_rollout_refuses_a_shrink_it_cannot_apply() {
     assert_ne!(latent, text);
     let config = dir.join("world-model-tiny.yaml");
     std::fs::write(&config, latent).expect("write");
-    params.model.model = config;
+    let latent_model = bundle(&config, &shipped_weights());
     params.shrink = shrink(0.25, 3.0);
-    let (message, _) = refusal(&params);
+    let (message, _) = refusal_in(&params, &latent_model);
     assert!(
         message.starts_with("shrink") && message.contains("residual"),
         "{message}"
     );
     params.shrink = None;
-    assert!(diffusion_rollout::plan(&params).is_ok());
+    assert!(diffusion_rollout::plan(&params, &latent_model).is_ok());
     // A misspelt field in the graph's YAML is named.
-    let yaml = "{model: m.yaml, weights: w.bpk, latent_stats: s.json, horizons: [1.0], shrink: {tau: 0.25, fade: 3.0}}";
+    let yaml = "{model: tiny, horizons: [1.0], shrink: {tau: 0.25, fade: 3.0}}";
     let error = serde_saphyr::from_str::<DiffusionRolloutParams>(yaml).expect_err("unknown field");
     assert!(error.to_string().contains("fade"), "{error}");
     std::fs::remove_dir_all(&dir).ok();
@@ -548,7 +608,8 @@ fn window(seed: u64) -> LatentWindow {
 
 #[test]
 fn the_rollout_is_deterministic_for_a_seed_and_moves_the_pose_by_its_actions() {
-    let node = diffusion_rollout::build(&rollout_params("keep", &[0.5, 3.0])).expect("node");
+    let node =
+        diffusion_rollout::build(&rollout_params("keep", &[0.5, 3.0]), &shipped()).expect("node");
     let first = node.forecast(&window(1)).expect("forecast");
     let again = node.forecast(&window(1)).expect("forecast");
     assert_eq!(first.horizons.len(), 2);

@@ -1,7 +1,9 @@
 //! `encode`: a sensor frame and its pillars in, the 4-channel BEV latent out (and, when
 //! something listens, the fused BEV feature before compression).
 
-use bevworld_graph::{Inputs, KindSpec, Node, NodeError, Outputs, Port, Registry, Task};
+use std::sync::Arc;
+
+use bevworld_graph::{Inputs, KindSpec, Models, Node, NodeError, Outputs, Port, Registry, Task};
 use bevworld_types::{BevFeatures, BevGrid, FrameMeta, Pillars, SensorFrame};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -24,7 +26,7 @@ pub struct EncodeParams {
 }
 
 pub struct EncodeNode {
-    loaded: LoadedModel,
+    loaded: Arc<LoadedModel>,
     inputs: FrameInputs,
 }
 
@@ -95,7 +97,7 @@ impl Task for EncodeNode {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register_checked(
+    registry.register_with_models(
         KindSpec::task(
             "encode",
             "the BEV tokenizer's encoder: six cameras and the sweep's pillars to the C' x h x w latent",
@@ -104,9 +106,9 @@ pub fn register(registry: &mut Registry) {
         .input(PILLARS.spec())
         .output(LATENT.spec())
         .output(FUSED.spec()),
-        |params: &EncodeParams| params.model.check(),
-        |params: EncodeParams| {
-            let loaded = params.model.load()?;
+        |params: &EncodeParams, models: &Models| params.model.check(models),
+        |params: EncodeParams, models: &Models| {
+            let loaded = params.model.load_shared(models)?;
             Ok(Node::Task(Box::new(EncodeNode {
                 inputs: FrameInputs::new(&loaded.config),
                 loaded,

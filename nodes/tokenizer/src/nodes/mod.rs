@@ -5,7 +5,7 @@ pub mod encode;
 pub mod loaded_model;
 pub mod render;
 
-pub use loaded_model::{LoadedModel, ModelParams};
+pub use loaded_model::{CheckedTokenizer, LoadedModel, ModelParams, check_files};
 
 /// Registers this family's node kinds.
 pub fn register(registry: &mut bevworld_graph::Registry) {

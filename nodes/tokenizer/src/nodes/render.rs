@@ -64,7 +64,7 @@ fn default_chunk() -> usize {
 }
 
 pub struct RenderNode {
-    loaded: LoadedModel,
+    loaded: Arc<LoadedModel>,
     inputs: FrameInputs,
     skipping: Option<SkipOptions>,
     chunk: usize,
@@ -386,7 +386,7 @@ fn sensors(names: &[String]) -> Result<(bool, bool), ParamError> {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register_checked(
+    registry.register_with_models(
         KindSpec::task(
             "render",
             "the BEV tokenizer's decoder: a latent to voxels, ray-cast into the frame's six cameras and LiDAR beams",
@@ -398,7 +398,7 @@ pub fn register(registry: &mut Registry) {
         .output(LIDAR.spec())
         .output(SIDE_BY_SIDE.spec())
         .output(FUTURE_OUT.spec()),
-        |params: &RenderParams| {
+        |params: &RenderParams, models: &bevworld_graph::Models| {
             if let Some(options) = &params.skipping {
                 let problems = options.problems();
                 if let Some(first) = problems.first() {
@@ -409,11 +409,11 @@ pub fn register(registry: &mut Registry) {
             if params.chunk == 0 {
                 return Err(ParamError::field("chunk", "must be at least 1").with_accepted("an integer >= 1"));
             }
-            params.model.check()
+            params.model.check(models)
         },
-        |params: RenderParams| {
+        |params: RenderParams, models: &bevworld_graph::Models| {
             let (future_cameras, future_lidar) = sensors(&params.sensors)?;
-            let loaded = params.model.load()?;
+            let loaded = params.model.load_shared(models)?;
             Ok(Node::Task(Box::new(RenderNode {
                 future_cameras,
                 future_lidar,

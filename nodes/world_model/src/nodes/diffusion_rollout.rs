@@ -10,31 +10,26 @@
 //! current latent as it is (`latent_copy_last`) and moved by the same actions
 //! (`latent_ego_warp`).
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
+    Figures, Inputs, KindSpec, Models, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{
-    BevFeatures, EgoAction, Forecast, ForecastHorizon, ForecastMethod, FrameMeta, LatentStats,
-    LatentStatsFile, LatentWindow, Pose,
+    BevFeatures, EgoAction, Forecast, ForecastHorizon, ForecastMethod, FrameMeta, LatentWindow,
+    Pose,
 };
-use burn::prelude::*;
 use glam::{DQuat, DVec3};
 use serde::{Deserialize, Serialize};
 
-use crate::actions::ActionStats;
 use crate::config::WorldModelConfig;
 use crate::ddim::{DdimConfig, DdimError, Spacing};
 use crate::ego_warp::PlanarMotion;
 use crate::manoeuvre::{Manoeuvre, constant_turn, current_motion};
-use crate::model::WorldModel;
 use crate::nodes::model_params::WorldModelParams;
-use crate::rollout::Rollout;
+use crate::rollout::{LoadedWorldModel, Rollout};
 use crate::shrink::ResidualShrink;
-use crate::weights::load_weights;
 
 // The node's ports, each named once (`bevworld_graph::Port`).
 const WINDOW: Port<LatentWindow> = Port::new("window");
@@ -43,12 +38,10 @@ const FORECAST: Port<Forecast> = Port::new("forecast");
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DiffusionRolloutParams {
+    /// The bundle of the graph's `models:` section whose world model (and whose tokenizer's
+    /// latent statistics) the rollout runs.
     #[serde(flatten)]
     pub model: WorldModelParams,
-    /// The tokenizer's statistics file, which standardises the latents
-    /// (`nodes/tokenizer/weights/tokenizer-tiny.stats.json`); it must be of the tokenizer the
-    /// weights pair with.
-    pub latent_stats: PathBuf,
     /// Horizons to emit, in seconds: multiples of the model's frame interval up to its last
     /// future frame.
     pub horizons: Vec<f64>,
@@ -174,8 +167,8 @@ pub struct RolloutPlan {
     pub sampler: DdimConfig,
 }
 
-pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> {
-    let (config, meta) = params.model.check()?;
+pub fn plan(params: &DiffusionRolloutParams, models: &Models) -> Result<RolloutPlan, ParamError> {
+    let (config, _) = params.model.check(models)?;
     let n = config.future_frames;
     let interval = config.frame_interval_s;
     let actions = match params.actions.as_str() {
@@ -281,34 +274,6 @@ pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> 
             };
             ParamError::field(field, error.to_string())
         })?;
-    let stats = LatentStatsFile::load(&params.latent_stats)
-        .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
-    if stats.model != meta.tokenizer_model || stats.weights_hash != meta.tokenizer_weights_hash {
-        return Err(ParamError::field(
-            "latent_stats",
-            format!(
-                "{} were computed for tokenizer '{}' with weights {}, but the world model's weights {} pair with '{}' with weights {} (as {} records): give the statistics of the tokenizer the world model was trained on",
-                params.latent_stats.display(),
-                stats.model,
-                stats.weights_hash,
-                params.model.weights.display(),
-                meta.tokenizer_model,
-                meta.tokenizer_weights_hash,
-                crate::weights::meta_path_for(&params.model.weights).display()
-            ),
-        ));
-    }
-    if stats.stats.mean.len() != config.latent_channels {
-        return Err(ParamError::field(
-            "latent_stats",
-            format!(
-                "{} holds statistics of {} channels, but the world model's latent has {}",
-                params.latent_stats.display(),
-                stats.stats.mean.len(),
-                config.latent_channels
-            ),
-        ));
-    }
     Ok(RolloutPlan {
         config,
         actions,
@@ -319,10 +284,8 @@ pub fn plan(params: &DiffusionRolloutParams) -> Result<RolloutPlan, ParamError> 
 
 pub struct DiffusionRolloutNode {
     plan: RolloutPlan,
-    model: WorldModel,
-    action_stats: ActionStats,
-    latent_stats: LatentStats,
-    device: Device,
+    /// The graph's world model, shared with any other node of the graph that runs it.
+    loaded: Arc<LoadedWorldModel>,
     baselines: bool,
     forecasts: u64,
     sampling_ms: f64,
@@ -349,11 +312,8 @@ impl DiffusionRolloutNode {
             .actions
             .resolve(window, n, config.frame_interval_s)?;
         let rollout = Rollout {
-            model: &self.model,
             config,
-            action_stats: &self.action_stats,
-            latent_stats: &self.latent_stats,
-            device: self.device.clone(),
+            ..self.loaded.rollout()
         };
         let context: Vec<Vec<f32>> = window.context.iter().map(|l| l.data.clone()).collect();
         let started = Instant::now();
@@ -428,11 +388,13 @@ impl Task for DiffusionRolloutNode {
     fn process(&mut self, inputs: &Inputs, out: &mut Outputs) -> Result<(), NodeError> {
         let window = inputs.get(&WINDOW)?;
         let forecast = self.forecast(window).map_err(NodeError::item)?;
-        if forecast
-            .future_actions
-            .iter()
-            .any(|action| self.action_stats.outside_training(action))
-        {
+        if forecast.future_actions.iter().any(|action| {
+            self.loaded
+                .weights
+                .meta
+                .action_stats
+                .outside_training(action)
+        }) {
             if self.outside_training == 0 {
                 tracing::warn!(
                     frame = %forecast.context.frame_token,
@@ -463,26 +425,15 @@ impl Task for DiffusionRolloutNode {
     }
 }
 
-/// Builds the node: the checked plan, the weights (paired with the statistics' tokenizer) and
-/// the device.
-pub fn build(params: &DiffusionRolloutParams) -> Result<DiffusionRolloutNode, ParamError> {
-    let plan = plan(params)?;
-    let stats = LatentStatsFile::load(&params.latent_stats)
-        .map_err(|error| ParamError::field("latent_stats", error.to_string()))?;
-    let (_, device) = bevworld_device::from_env()
-        .map_err(|error| ParamError::field("model", format!("no device to run it on: {error}")))?;
-    let weights = load_weights(
-        &plan.config,
-        &params.model.weights,
-        Some((&stats.model, &stats.weights_hash)),
-        &device,
-    )
-    .map_err(|error| ParamError::field("weights", error.to_string()))?;
+/// Builds the node: the checked plan and the graph's world model, loaded once per graph and
+/// paired with its tokenizer's statistics.
+pub fn build(
+    params: &DiffusionRolloutParams,
+    models: &Models,
+) -> Result<DiffusionRolloutNode, ParamError> {
+    let plan = plan(params, models)?;
     Ok(DiffusionRolloutNode {
-        action_stats: weights.meta.action_stats.clone(),
-        model: weights.model,
-        latent_stats: stats.stats,
-        device,
+        loaded: params.model.load_shared(models)?,
         baselines: params.baselines,
         plan,
         forecasts: 0,
@@ -492,14 +443,16 @@ pub fn build(params: &DiffusionRolloutParams) -> Result<DiffusionRolloutNode, Pa
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register_checked(
+    registry.register_with_models(
         KindSpec::task(
             "diffusion_rollout",
             "the world model: a window of past latents to the future latents at the requested horizons, by DDIM",
         )
         .input(WINDOW.spec())
         .output(FORECAST.spec()),
-        |params: &DiffusionRolloutParams| plan(params).map(|_| ()),
-        |params: DiffusionRolloutParams| Ok(Node::Task(Box::new(build(&params)?))),
+        |params: &DiffusionRolloutParams, models: &Models| plan(params, models).map(|_| ()),
+        |params: DiffusionRolloutParams, models: &Models| {
+            Ok(Node::Task(Box::new(build(&params, models)?)))
+        },
     );
 }

@@ -21,7 +21,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use bevworld_graph::{
-    Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
+    Figures, Inputs, KindSpec, Models, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{BevFeatures, EgoAction, LatentWindow, LoggedPose};
 use serde::{Deserialize, Serialize};
@@ -35,6 +35,7 @@ const WINDOW: Port<LatentWindow> = Port::new("window");
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct LatentHistoryParams {
+    /// The bundle of the graph's `models:` section whose world model the history feeds.
     #[serde(flatten)]
     pub model: WorldModelParams,
     /// Keep every `every`-th frame of a scene; absent: keep frames the model's interval apart.
@@ -333,7 +334,7 @@ impl Task for LatentHistoryNode {
     }
 }
 
-fn check(params: &LatentHistoryParams) -> Result<HistoryShape, ParamError> {
+fn check(params: &LatentHistoryParams, models: &Models) -> Result<HistoryShape, ParamError> {
     if params.every == Some(0) {
         return Err(
             ParamError::field("every", "must be at least 1").with_accepted("an integer >= 1")
@@ -351,7 +352,7 @@ fn check(params: &LatentHistoryParams) -> Result<HistoryShape, ParamError> {
             format!("{} must lie in (0, 0.5)", params.tolerance),
         ));
     }
-    let (config, meta) = params.model.check()?;
+    let (config, meta) = params.model.check(models)?;
     Ok(HistoryShape {
         context: config.context_frames,
         future: if params.log_future {
@@ -370,16 +371,16 @@ fn check(params: &LatentHistoryParams) -> Result<HistoryShape, ParamError> {
 }
 
 pub fn register(registry: &mut Registry) {
-    registry.register_checked(
+    registry.register_with_models(
         KindSpec::task(
             "latent_history",
             "the last latents of the scene at the world model's stride; one window per new frame once full",
         )
         .input(LATENT.spec())
         .output(WINDOW.spec()),
-        |params: &LatentHistoryParams| check(params).map(|_| ()),
-        |params: LatentHistoryParams| {
-            let shape = check(&params)?;
+        |params: &LatentHistoryParams, models: &Models| check(params, models).map(|_| ()),
+        |params: LatentHistoryParams, models: &Models| {
+            let shape = check(&params, models)?;
             Ok(Node::Task(Box::new(LatentHistoryNode {
                 history: LatentHistory::new(shape, params.every, params.gap_factor, params.tolerance),
             })))
