@@ -79,6 +79,319 @@ fn is_non_unit(wxyz: &[f64; 4]) -> bool {
     (norm - 1.0).abs() > UNIT_QUATERNION_TOLERANCE
 }
 
+/// The tables a dataset is opened from, each with the file it was read from.
+struct Tables {
+    scenes: (PathBuf, Vec<Scene>),
+    samples: (PathBuf, Vec<Sample>),
+    sample_data: (PathBuf, Vec<SampleData>),
+    calibrated: (PathBuf, Vec<CalibratedSensor>),
+    sensors: (PathBuf, Vec<Sensor>),
+    poses: (PathBuf, Vec<EgoPose>),
+}
+
+impl Tables {
+    fn read(dir: &Path) -> Result<Self> {
+        Ok(Self {
+            scenes: read_table::<Scene>(dir, "scene")?,
+            samples: read_table::<Sample>(dir, "sample")?,
+            sample_data: read_table::<SampleData>(dir, "sample_data")?,
+            calibrated: read_table::<CalibratedSensor>(dir, "calibrated_sensor")?,
+            sensors: read_table::<Sensor>(dir, "sensor")?,
+            poses: read_table::<EgoPose>(dir, "ego_pose")?,
+        })
+    }
+}
+
+/// The tables' records by token, for resolving a `sample_data` record's references.
+struct TableIndex<'t> {
+    tables: &'t Tables,
+    sensors: HashMap<&'t str, &'t Sensor>,
+    calibrated: HashMap<&'t str, &'t CalibratedSensor>,
+    poses: HashMap<&'t str, &'t EgoPose>,
+    samples: HashMap<&'t str, &'t Sample>,
+}
+
+/// A resolved reading with its channel and record.
+type ChannelReading<'t> = (String, &'t SampleData, Reading);
+
+fn dangling(token: &str, table: &Path) -> String {
+    format!("dangling token '{token}' (not in {})", table.display())
+}
+
+impl<'t> TableIndex<'t> {
+    /// The index, once every camera sensor is known to name a camera channel.
+    fn new(tables: &'t Tables) -> Result<Self> {
+        let (sensor_path, sensors) = &tables.sensors;
+        for sensor in sensors {
+            if sensor.modality == "camera" && CameraChannel::from_name(&sensor.channel).is_none() {
+                return Err(SensorError::field(
+                    sensor_path,
+                    format!("sensor {}", sensor.token),
+                    "channel",
+                    format!(
+                        "unknown camera channel '{}' (known: CAM_FRONT, CAM_FRONT_RIGHT, CAM_BACK_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_FRONT_LEFT)",
+                        sensor.channel
+                    ),
+                ));
+            }
+        }
+        Ok(Self {
+            tables,
+            sensors: sensors.iter().map(|s| (s.token.as_str(), s)).collect(),
+            calibrated: tables
+                .calibrated
+                .1
+                .iter()
+                .map(|c| (c.token.as_str(), c))
+                .collect(),
+            poses: tables
+                .poses
+                .1
+                .iter()
+                .map(|p| (p.token.as_str(), p))
+                .collect(),
+            samples: tables
+                .samples
+                .1
+                .iter()
+                .map(|s| (s.token.as_str(), s))
+                .collect(),
+        })
+    }
+
+    /// One `sample_data` record resolved into a reading with its channel: every token it
+    /// names exists, its poses are valid, and a camera's intrinsics are a real camera's.
+    fn reading(&self, record: &'t SampleData) -> Result<ChannelReading<'t>> {
+        let data_path = &self.tables.sample_data.0;
+        let calib_path = &self.tables.calibrated.0;
+        let pose_path = &self.tables.poses.0;
+        let name = format!("sample_data {}", record.token);
+        let calib = self
+            .calibrated
+            .get(record.calibrated_sensor_token.as_str())
+            .ok_or_else(|| {
+                SensorError::field(
+                    data_path,
+                    &name,
+                    "calibrated_sensor_token",
+                    dangling(&record.calibrated_sensor_token, calib_path),
+                )
+            })?;
+        let sensor = self
+            .sensors
+            .get(calib.sensor_token.as_str())
+            .ok_or_else(|| {
+                SensorError::field(
+                    calib_path,
+                    format!("calibrated_sensor {}", calib.token),
+                    "sensor_token",
+                    dangling(&calib.sensor_token, &self.tables.sensors.0),
+                )
+            })?;
+        let pose = self
+            .poses
+            .get(record.ego_pose_token.as_str())
+            .ok_or_else(|| {
+                SensorError::field(
+                    data_path,
+                    &name,
+                    "ego_pose_token",
+                    dangling(&record.ego_pose_token, pose_path),
+                )
+            })?;
+        if !self.samples.contains_key(record.sample_token.as_str()) {
+            return Err(SensorError::field(
+                data_path,
+                &name,
+                "sample_token",
+                dangling(&record.sample_token, &self.tables.samples.0),
+            ));
+        }
+        let global_from_ego = pose_from_translation_quaternion(pose.translation, pose.rotation)
+            .ok_or_else(|| {
+                SensorError::field(
+                    pose_path,
+                    format!("ego_pose {}", pose.token),
+                    "rotation",
+                    "not a valid rotation quaternion or translation",
+                )
+            })?;
+        let ego_from_sensor = pose_from_translation_quaternion(calib.translation, calib.rotation)
+            .ok_or_else(|| {
+            SensorError::field(
+                calib_path,
+                format!("calibrated_sensor {}", calib.token),
+                "rotation",
+                "not a valid rotation quaternion or translation",
+            )
+        })?;
+        let intrinsics = if sensor.modality == "camera" {
+            Some(camera_intrinsics(calib, record, calib_path)?)
+        } else {
+            None
+        };
+        Ok((
+            sensor.channel.clone(),
+            record,
+            Reading {
+                token: record.token.clone(),
+                file: record.filename.clone(),
+                timestamp_us: record.timestamp,
+                global_from_ego,
+                ego_from_sensor,
+                intrinsics,
+            },
+        ))
+    }
+}
+
+/// A camera's intrinsics: a finite 3x3 matrix with positive focal lengths.
+fn camera_intrinsics(
+    calib: &CalibratedSensor,
+    record: &SampleData,
+    calib_path: &Path,
+) -> Result<Intrinsics> {
+    let rows = &calib.camera_intrinsic;
+    if rows.len() != 3
+        || rows
+            .iter()
+            .any(|row| row.len() != 3 || row.iter().any(|v| !v.is_finite()))
+    {
+        return Err(SensorError::field(
+            calib_path,
+            format!("calibrated_sensor {}", calib.token),
+            "camera_intrinsic",
+            "a camera needs a finite 3x3 matrix",
+        ));
+    }
+    let matrix = [
+        [rows[0][0], rows[0][1], rows[0][2]],
+        [rows[1][0], rows[1][1], rows[1][2]],
+        [rows[2][0], rows[2][1], rows[2][2]],
+    ];
+    // A focal length of 0 projects every point onto the principal point, and a negative one
+    // mirrors the image: no real camera has either.
+    let (fx, fy) = (matrix[0][0], matrix[1][1]);
+    if !(fx > 0.0 && fy > 0.0) {
+        return Err(SensorError::field(
+            calib_path,
+            format!("calibrated_sensor {}", calib.token),
+            "camera_intrinsic",
+            format!("focal lengths fx = {fx}, fy = {fy}: a camera needs both > 0"),
+        ));
+    }
+    Ok(Intrinsics::from_rows(matrix, record.width, record.height))
+}
+
+/// The scenes named in `wanted` (all when empty), in table order; a name no scene has is an
+/// error listing the scenes.
+fn select_scenes<'s>(
+    scenes: &'s (PathBuf, Vec<Scene>),
+    wanted: &[String],
+) -> Result<Vec<&'s Scene>> {
+    let (scene_path, scenes) = scenes;
+    for name in wanted {
+        if !scenes.iter().any(|s| &s.name == name) {
+            let known: Vec<&str> = scenes.iter().map(|s| s.name.as_str()).collect();
+            return Err(SensorError::file(
+                scene_path,
+                format!("no scene named '{name}' (scenes: {})", known.join(", ")),
+            ));
+        }
+    }
+    Ok(scenes
+        .iter()
+        .filter(|scene| wanted.is_empty() || wanted.contains(&scene.name))
+        .collect())
+}
+
+/// The frames of one scene, appended to `frames`: one per LiDAR reading (keyframes, or every
+/// sweep), in time order, each with the nearest image of every camera, its keyframe's boxes,
+/// and the ego's action into the next frame.
+fn scene_frames(
+    scene: &Scene,
+    keyframes: &[&Sample],
+    readings: &[ChannelReading],
+    options: &NuScenesOptions,
+    data_path: &Path,
+    boxes: &mut HashMap<String, Vec<ObjectBox>>,
+    frames: &mut Vec<FrameRef>,
+) -> Result<()> {
+    let scene_samples: std::collections::HashSet<&str> =
+        keyframes.iter().map(|s| s.token.as_str()).collect();
+    // LiDAR readings that define frames, in time order.
+    let mut lidar_readings: Vec<&ChannelReading> = readings
+        .iter()
+        .filter(|(channel, record, _)| {
+            channel == "LIDAR_TOP"
+                && scene_samples.contains(record.sample_token.as_str())
+                && (options.sweeps || record.is_key_frame)
+        })
+        .collect();
+    lidar_readings.sort_by_key(|(_, record, _)| record.timestamp);
+    if let Some(pair) = lidar_readings
+        .windows(2)
+        .find(|w| w[0].1.timestamp >= w[1].1.timestamp)
+    {
+        return Err(SensorError::field(
+            data_path,
+            format!("sample_data {}", pair[1].1.token),
+            "timestamp",
+            format!(
+                "timestamps are not strictly increasing within scene '{}' ({} then {})",
+                scene.name, pair[0].1.timestamp, pair[1].1.timestamp
+            ),
+        ));
+    }
+    let scene_cameras: Vec<&ChannelReading> = readings
+        .iter()
+        .filter(|(channel, record, _)| {
+            CameraChannel::from_name(channel).is_some()
+                && scene_samples.contains(record.sample_token.as_str())
+                && (options.sweeps || record.is_key_frame)
+        })
+        .collect();
+    let first_index = frames.len();
+    for (index_in_scene, (_, lidar_record, lidar)) in lidar_readings.iter().enumerate() {
+        let mut cameras = Vec::new();
+        for channel in CameraChannel::ALL {
+            let candidates = scene_cameras.iter().filter(|(name, record, _)| {
+                name == channel.name()
+                    && (options.sweeps || record.sample_token == lidar_record.sample_token)
+            });
+            let nearest = candidates
+                .min_by_key(|(_, record, _)| (record.timestamp - lidar_record.timestamp).abs());
+            if let Some((_, _, reading)) = nearest {
+                cameras.push((channel, reading.clone()));
+            }
+        }
+        frames.push(FrameRef {
+            sample_token: lidar_record.sample_token.clone(),
+            scene_name: scene.name.clone(),
+            index_in_scene,
+            lidar: lidar.clone(),
+            cameras,
+            action: None,
+            boxes: if lidar_record.is_key_frame {
+                boxes.remove(&lidar_record.sample_token).unwrap_or_default()
+            } else {
+                Vec::new()
+            },
+        });
+    }
+    // Actions between consecutive frames of the scene.
+    for index in first_index..frames.len().saturating_sub(1) {
+        let (a, b) = (&frames[index].lidar, &frames[index + 1].lidar);
+        frames[index].action = EgoAction::between(
+            &a.global_from_ego,
+            a.timestamp_us,
+            &b.global_from_ego,
+            b.timestamp_us,
+        );
+    }
+    Ok(())
+}
+
 impl NuScenes {
     pub fn open(root: &Path, options: NuScenesOptions) -> Result<Self> {
         let version = match &options.version {
@@ -92,261 +405,40 @@ impl NuScenes {
                 "no such table folder (expected the nuScenes layout: <root>/<version>/*.json)",
             ));
         }
-        let (scene_path, scenes) = read_table::<Scene>(&dir, "scene")?;
-        let (sample_path, samples) = read_table::<Sample>(&dir, "sample")?;
-        let (data_path, sample_data) = read_table::<SampleData>(&dir, "sample_data")?;
-        let (calib_path, calibrated) = read_table::<CalibratedSensor>(&dir, "calibrated_sensor")?;
-        let (sensor_path, sensors) = read_table::<Sensor>(&dir, "sensor")?;
-        let (pose_path, poses) = read_table::<EgoPose>(&dir, "ego_pose")?;
-        let mut boxes = super::annotations::boxes_by_sample(&dir, &samples)?;
-
-        let sensor_by_token: HashMap<&str, &Sensor> =
-            sensors.iter().map(|s| (s.token.as_str(), s)).collect();
-        let calib_by_token: HashMap<&str, &CalibratedSensor> =
-            calibrated.iter().map(|c| (c.token.as_str(), c)).collect();
-        let pose_by_token: HashMap<&str, &EgoPose> =
-            poses.iter().map(|p| (p.token.as_str(), p)).collect();
-        let sample_by_token: HashMap<&str, &Sample> =
-            samples.iter().map(|s| (s.token.as_str(), s)).collect();
-        for sensor in &sensors {
-            if sensor.modality == "camera" && CameraChannel::from_name(&sensor.channel).is_none() {
-                return Err(SensorError::field(
-                    &sensor_path,
-                    format!("sensor {}", sensor.token),
-                    "channel",
-                    format!(
-                        "unknown camera channel '{}' (known: CAM_FRONT, CAM_FRONT_RIGHT, CAM_BACK_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_FRONT_LEFT)",
-                        sensor.channel
-                    ),
-                ));
-            }
-        }
-
-        // Resolve every sample_data record into a reading with its channel.
-        let mut readings: Vec<(String, &SampleData, Reading)> =
-            Vec::with_capacity(sample_data.len());
-        for record in &sample_data {
-            let name = format!("sample_data {}", record.token);
-            let calib = calib_by_token
-                .get(record.calibrated_sensor_token.as_str())
-                .ok_or_else(|| {
-                    SensorError::field(
-                        &data_path,
-                        &name,
-                        "calibrated_sensor_token",
-                        format!(
-                            "dangling token '{}' (not in {})",
-                            record.calibrated_sensor_token,
-                            calib_path.display()
-                        ),
-                    )
-                })?;
-            let sensor = sensor_by_token
-                .get(calib.sensor_token.as_str())
-                .ok_or_else(|| {
-                    SensorError::field(
-                        &calib_path,
-                        format!("calibrated_sensor {}", calib.token),
-                        "sensor_token",
-                        format!(
-                            "dangling token '{}' (not in {})",
-                            calib.sensor_token,
-                            sensor_path.display()
-                        ),
-                    )
-                })?;
-            let pose = pose_by_token
-                .get(record.ego_pose_token.as_str())
-                .ok_or_else(|| {
-                    SensorError::field(
-                        &data_path,
-                        &name,
-                        "ego_pose_token",
-                        format!(
-                            "dangling token '{}' (not in {})",
-                            record.ego_pose_token,
-                            pose_path.display()
-                        ),
-                    )
-                })?;
-            if !sample_by_token.contains_key(record.sample_token.as_str()) {
-                return Err(SensorError::field(
-                    &data_path,
-                    &name,
-                    "sample_token",
-                    format!(
-                        "dangling token '{}' (not in {})",
-                        record.sample_token,
-                        sample_path.display()
-                    ),
-                ));
-            }
-            let global_from_ego = pose_from_translation_quaternion(pose.translation, pose.rotation)
-                .ok_or_else(|| {
-                    SensorError::field(
-                        &pose_path,
-                        format!("ego_pose {}", pose.token),
-                        "rotation",
-                        "not a valid rotation quaternion or translation",
-                    )
-                })?;
-            let ego_from_sensor =
-                pose_from_translation_quaternion(calib.translation, calib.rotation).ok_or_else(
-                    || {
-                        SensorError::field(
-                            &calib_path,
-                            format!("calibrated_sensor {}", calib.token),
-                            "rotation",
-                            "not a valid rotation quaternion or translation",
-                        )
-                    },
-                )?;
-            let intrinsics = if sensor.modality == "camera" {
-                let rows = &calib.camera_intrinsic;
-                if rows.len() != 3
-                    || rows
-                        .iter()
-                        .any(|row| row.len() != 3 || row.iter().any(|v| !v.is_finite()))
-                {
-                    return Err(SensorError::field(
-                        &calib_path,
-                        format!("calibrated_sensor {}", calib.token),
-                        "camera_intrinsic",
-                        "a camera needs a finite 3x3 matrix",
-                    ));
-                }
-                let matrix = [
-                    [rows[0][0], rows[0][1], rows[0][2]],
-                    [rows[1][0], rows[1][1], rows[1][2]],
-                    [rows[2][0], rows[2][1], rows[2][2]],
-                ];
-                // A focal length of 0 projects every point onto the principal point, and a
-                // negative one mirrors the image: no real camera has either.
-                let (fx, fy) = (matrix[0][0], matrix[1][1]);
-                if !(fx > 0.0 && fy > 0.0) {
-                    return Err(SensorError::field(
-                        &calib_path,
-                        format!("calibrated_sensor {}", calib.token),
-                        "camera_intrinsic",
-                        format!("focal lengths fx = {fx}, fy = {fy}: a camera needs both > 0"),
-                    ));
-                }
-                Some(Intrinsics::from_rows(matrix, record.width, record.height))
-            } else {
-                None
-            };
-            readings.push((
-                sensor.channel.clone(),
-                record,
-                Reading {
-                    token: record.token.clone(),
-                    file: record.filename.clone(),
-                    timestamp_us: record.timestamp,
-                    global_from_ego,
-                    ego_from_sensor,
-                    intrinsics,
-                },
-            ));
-        }
-
-        // Scenes in table order, filtered by name.
-        let mut selected: Vec<&Scene> = Vec::new();
-        for wanted in &options.scenes {
-            if !scenes.iter().any(|s| &s.name == wanted) {
-                let known: Vec<&str> = scenes.iter().map(|s| s.name.as_str()).collect();
-                return Err(SensorError::file(
-                    &scene_path,
-                    format!("no scene named '{wanted}' (scenes: {})", known.join(", ")),
-                ));
-            }
-        }
-        for scene in &scenes {
-            if options.scenes.is_empty() || options.scenes.contains(&scene.name) {
-                selected.push(scene);
-            }
-        }
-
+        let tables = Tables::read(&dir)?;
+        let mut boxes = super::annotations::boxes_by_sample(&dir, &tables.samples.1)?;
+        let index = TableIndex::new(&tables)?;
+        let readings = tables
+            .sample_data
+            .1
+            .iter()
+            .map(|record| index.reading(record))
+            .collect::<Result<Vec<_>>>()?;
         let mut frames = Vec::new();
-        for scene in selected {
-            let keyframes = ordered_samples(scene, &samples, &sample_by_token, &sample_path)?;
-            let scene_samples: std::collections::HashSet<&str> =
-                keyframes.iter().map(|s| s.token.as_str()).collect();
-            // LiDAR readings that define frames, in time order.
-            let mut lidar_readings: Vec<&(String, &SampleData, Reading)> = readings
-                .iter()
-                .filter(|(channel, record, _)| {
-                    channel == "LIDAR_TOP"
-                        && scene_samples.contains(record.sample_token.as_str())
-                        && (options.sweeps || record.is_key_frame)
-                })
-                .collect();
-            lidar_readings.sort_by_key(|(_, record, _)| record.timestamp);
-            if let Some(pair) = lidar_readings
-                .windows(2)
-                .find(|w| w[0].1.timestamp >= w[1].1.timestamp)
-            {
-                return Err(SensorError::field(
-                    &data_path,
-                    format!("sample_data {}", pair[1].1.token),
-                    "timestamp",
-                    format!(
-                        "timestamps are not strictly increasing within scene '{}' ({} then {})",
-                        scene.name, pair[0].1.timestamp, pair[1].1.timestamp
-                    ),
-                ));
-            }
-            let scene_cameras: Vec<&(String, &SampleData, Reading)> = readings
-                .iter()
-                .filter(|(channel, record, _)| {
-                    CameraChannel::from_name(channel).is_some()
-                        && scene_samples.contains(record.sample_token.as_str())
-                        && (options.sweeps || record.is_key_frame)
-                })
-                .collect();
-            let first_index = frames.len();
-            for (index_in_scene, (_, lidar_record, lidar)) in lidar_readings.iter().enumerate() {
-                let mut cameras = Vec::new();
-                for channel in CameraChannel::ALL {
-                    let candidates = scene_cameras.iter().filter(|(name, record, _)| {
-                        name == channel.name()
-                            && (options.sweeps || record.sample_token == lidar_record.sample_token)
-                    });
-                    let nearest = candidates.min_by_key(|(_, record, _)| {
-                        (record.timestamp - lidar_record.timestamp).abs()
-                    });
-                    if let Some((_, _, reading)) = nearest {
-                        cameras.push((channel, reading.clone()));
-                    }
-                }
-                frames.push(FrameRef {
-                    sample_token: lidar_record.sample_token.clone(),
-                    scene_name: scene.name.clone(),
-                    index_in_scene,
-                    lidar: lidar.clone(),
-                    cameras,
-                    action: None,
-                    boxes: if lidar_record.is_key_frame {
-                        boxes.remove(&lidar_record.sample_token).unwrap_or_default()
-                    } else {
-                        Vec::new()
-                    },
-                });
-            }
-            // Actions between consecutive frames of the scene.
-            for index in first_index..frames.len().saturating_sub(1) {
-                let (a, b) = (&frames[index].lidar, &frames[index + 1].lidar);
-                frames[index].action = EgoAction::between(
-                    &a.global_from_ego,
-                    a.timestamp_us,
-                    &b.global_from_ego,
-                    b.timestamp_us,
-                );
-            }
+        for scene in select_scenes(&tables.scenes, &options.scenes)? {
+            let keyframes =
+                ordered_samples(scene, &tables.samples.1, &index.samples, &tables.samples.0)?;
+            scene_frames(
+                scene,
+                &keyframes,
+                &readings,
+                &options,
+                &tables.sample_data.0,
+                &mut boxes,
+                &mut frames,
+            )?;
         }
         // Normalised where they are used (a zero or non-finite one was refused above); how many
         // needed it is a figure of the run, since a table written by hand often has them.
-        let non_unit_quaternions = poses.iter().filter(|p| is_non_unit(&p.rotation)).count()
-            + calibrated
+        let non_unit_quaternions = tables
+            .poses
+            .1
+            .iter()
+            .filter(|p| is_non_unit(&p.rotation))
+            .count()
+            + tables
+                .calibrated
+                .1
                 .iter()
                 .filter(|c| is_non_unit(&c.rotation))
                 .count();

@@ -288,33 +288,81 @@ pub fn generate(
         )));
     }
     let started = Instant::now();
-    let mut tables = Tables::default();
-    let channels: Vec<String> = CAMERAS
-        .iter()
-        .map(|c| c.channel.name().to_string())
-        .chain(["LIDAR_TOP".to_string()])
-        .collect();
-    for (index, channel) in channels.iter().enumerate() {
-        tables.sensor.push(Sensor {
-            token: token(0, "sensor", index as u64),
-            channel: channel.clone(),
-            modality: if channel == "LIDAR_TOP" {
-                "lidar".into()
-            } else {
-                "camera".into()
-            },
-        });
-    }
+    let mut writer = Writer::new(out, config);
     let ticks_per_scene = ((config.seconds * super::scene::RATE_HZ).round() as usize).max(1);
     let total = ticks_per_scene * config.scene_variants().len();
-    let mut summary = SynthSummary {
-        scenes: config.scene_variants().len(),
-        ..Default::default()
-    };
-    let mut annotation_chain: BTreeMap<String, Vec<usize>> = BTreeMap::new();
-    let category = super::schema::category_token("vehicle.car");
-
     for (seed, branch) in config.scene_variants() {
+        let mut scene = writer.begin_scene(seed, branch);
+        for tick in 0..scene.world.ticks {
+            writer.write_tick(&mut scene, tick)?;
+            progress(writer.summary.frames, total);
+        }
+    }
+    writer.finish(started)
+}
+
+/// The dataset being written: its tables, filled scene by scene, tick by tick, and written
+/// at the end.
+struct Writer<'a> {
+    out: &'a Path,
+    config: &'a SynthConfig,
+    tables: Tables,
+    /// The six cameras' channels, then `LIDAR_TOP`: the sensor table's order.
+    channels: Vec<String>,
+    /// Each instance's annotations, in time order, to link as prev/next at the end.
+    annotation_chain: BTreeMap<String, Vec<usize>>,
+    summary: SynthSummary,
+}
+
+/// One scene (or branch of a scene) being written: its world, and the tokens its rows share.
+struct SceneInProgress {
+    seed: u64,
+    /// The key its tokens are made from: the seed, or the branch's own.
+    key: u64,
+    name: String,
+    world: SceneWorld,
+    calib_tokens: Vec<String>,
+    keyframe_ticks: Vec<usize>,
+    sample_tokens: Vec<String>,
+    /// Per channel, the last `sample_data` row written, to link the next to.
+    previous_data: Vec<Option<usize>>,
+}
+
+impl<'a> Writer<'a> {
+    fn new(out: &'a Path, config: &'a SynthConfig) -> Self {
+        let mut tables = Tables::default();
+        let channels: Vec<String> = CAMERAS
+            .iter()
+            .map(|c| c.channel.name().to_string())
+            .chain(["LIDAR_TOP".to_string()])
+            .collect();
+        for (index, channel) in channels.iter().enumerate() {
+            tables.sensor.push(Sensor {
+                token: token(0, "sensor", index as u64),
+                channel: channel.clone(),
+                modality: if channel == "LIDAR_TOP" {
+                    "lidar".into()
+                } else {
+                    "camera".into()
+                },
+            });
+        }
+        Self {
+            out,
+            config,
+            tables,
+            channels,
+            annotation_chain: BTreeMap::new(),
+            summary: SynthSummary {
+                scenes: config.scene_variants().len(),
+                ..Default::default()
+            },
+        }
+    }
+
+    /// The scene's world and its log, calibration, sample, scene and control rows.
+    fn begin_scene(&mut self, seed: u64, branch: Option<(f64, Manoeuvre)>) -> SceneInProgress {
+        let config = self.config;
         // A branch shares the world, the traffic, the LiDAR noise and the drive up to the
         // branch with its scene, but not its tokens, so that the tables keep scenes apart.
         let (key, name, world) = match branch {
@@ -330,39 +378,14 @@ pub fn generate(
             ),
         };
         let log_token = token(key, "log", 0);
-        tables.log.push(Log {
+        self.tables.log.push(Log {
             token: log_token.clone(),
             logfile: name.clone(),
             vehicle: "synth".into(),
             date_captured: "2026-01-01".into(),
             location: "synth-city".into(),
         });
-        // One calibration per sensor per scene, as nuScenes has one per log.
-        let calib_tokens: Vec<String> = (0..channels.len())
-            .map(|i| token(key, "calibrated_sensor", i as u64))
-            .collect();
-        for (i, mount) in CAMERAS.iter().enumerate() {
-            let k = mount.intrinsics(config.camera_width, config.camera_height);
-            tables.calibrated_sensor.push(CalibratedSensor {
-                token: calib_tokens[i].clone(),
-                sensor_token: tables.sensor[i].token.clone(),
-                translation: mount.translation,
-                rotation: mount.rotation,
-                camera_intrinsic: vec![
-                    vec![k.fx, 0.0, k.cx],
-                    vec![0.0, k.fy, k.cy],
-                    vec![0.0, 0.0, 1.0],
-                ],
-            });
-        }
-        tables.calibrated_sensor.push(CalibratedSensor {
-            token: calib_tokens[6].clone(),
-            sensor_token: tables.sensor[6].token.clone(),
-            translation: LIDAR_TRANSLATION,
-            rotation: LIDAR_ROTATION,
-            camera_intrinsic: Vec::new(),
-        });
-
+        let calib_tokens = self.push_calibration(key);
         let keyframe_ticks: Vec<usize> = (0..world.ticks)
             .filter(|k| k % KEYFRAME_EVERY == 0)
             .collect();
@@ -372,7 +395,7 @@ pub fn generate(
             .collect();
         let scene_token = token(key, "scene", 0);
         for (i, &tick) in keyframe_ticks.iter().enumerate() {
-            tables.sample.push(Sample {
+            self.tables.sample.push(Sample {
                 token: sample_tokens[i].clone(),
                 timestamp: world.tick_time_us(tick),
                 scene_token: scene_token.clone(),
@@ -384,8 +407,8 @@ pub fn generate(
                 next: sample_tokens.get(i + 1).cloned().unwrap_or_default(),
             });
         }
-        tables.scene.push(Scene {
-            token: scene_token,
+        self.tables.scene.push(Scene {
+            token: scene_token.clone(),
             log_token,
             nbr_samples: keyframe_ticks.len(),
             name: name.clone(),
@@ -401,8 +424,8 @@ pub fn generate(
             last_sample_token: sample_tokens.last().cloned().unwrap_or_default(),
         });
         for control in &world.controls {
-            tables.ego_control.push(json!({
-                "scene_token": tables.scene.last().map(|s| s.token.clone()).unwrap_or_default(),
+            self.tables.ego_control.push(json!({
+                "scene_token": scene_token,
                 "timestamp": control.timestamp,
                 "speed": control.speed,
                 "acceleration": control.acceleration,
@@ -410,184 +433,251 @@ pub fn generate(
                 "manoeuvre": control.manoeuvre,
             }));
         }
+        SceneInProgress {
+            seed,
+            key,
+            name,
+            world,
+            calib_tokens,
+            keyframe_ticks,
+            sample_tokens,
+            previous_data: vec![None; self.channels.len()],
+        }
+    }
 
-        let mut previous_data: Vec<Option<usize>> = vec![None; channels.len()];
-        for tick in 0..world.ticks {
-            let keyframe = tick % KEYFRAME_EVERY == 0;
-            let nearest_key =
-                ((tick + KEYFRAME_EVERY / 2) / KEYFRAME_EVERY).min(keyframe_ticks.len() - 1);
-            let sample_token = sample_tokens[nearest_key].clone();
-            let folder = if keyframe { "samples" } else { "sweeps" };
-            let lidar_time = world.tick_time_us(tick);
+    /// One calibration per sensor per scene, as nuScenes has one per log; their tokens.
+    fn push_calibration(&mut self, key: u64) -> Vec<String> {
+        let config = self.config;
+        let calib_tokens: Vec<String> = (0..self.channels.len())
+            .map(|i| token(key, "calibrated_sensor", i as u64))
+            .collect();
+        for (i, mount) in CAMERAS.iter().enumerate() {
+            let k = mount.intrinsics(config.camera_width, config.camera_height);
+            self.tables.calibrated_sensor.push(CalibratedSensor {
+                token: calib_tokens[i].clone(),
+                sensor_token: self.tables.sensor[i].token.clone(),
+                translation: mount.translation,
+                rotation: mount.rotation,
+                camera_intrinsic: vec![
+                    vec![k.fx, 0.0, k.cx],
+                    vec![0.0, k.fy, k.cy],
+                    vec![0.0, 0.0, 1.0],
+                ],
+            });
+        }
+        self.tables.calibrated_sensor.push(CalibratedSensor {
+            token: calib_tokens[6].clone(),
+            sensor_token: self.tables.sensor[6].token.clone(),
+            translation: LIDAR_TRANSLATION,
+            rotation: LIDAR_ROTATION,
+            camera_intrinsic: Vec::new(),
+        });
+        calib_tokens
+    }
 
-            // Cameras, each at its own trigger time and ego pose.
-            for (i, mount) in CAMERAS.iter().enumerate() {
-                let time = lidar_time + mount.offset_us;
-                let global_from_ego = world.global_from_ego(time);
-                let global_from_camera = global_from_ego * mount.ego_from_camera();
-                let snapshot = world.snapshot(time);
-                let intrinsics = mount.intrinsics(config.camera_width, config.camera_height);
-                let (image, _) =
-                    render_camera(&snapshot, &intrinsics, &global_from_camera, config.far);
-                let (bytes, extension) = encode_image(&image, config.image_encoding)?;
-                let file = format!(
-                    "{folder}/{}/{name}__{}__{time}.{extension}",
-                    mount.channel.name(),
-                    mount.channel.name()
-                );
-                write_file(&out.join(&file), &bytes)?;
-                push_sample_data(
-                    &mut tables,
-                    &mut previous_data[i],
-                    key,
-                    &sample_token,
-                    &calib_tokens[i],
-                    time,
-                    &global_from_ego,
-                    keyframe,
-                    &file,
-                    extension,
-                    config.camera_width,
-                    config.camera_height,
-                );
-            }
+    /// One sensor tick: six camera images, each at its own trigger time, the LiDAR sweep, and
+    /// on a keyframe the annotations of the vehicles around the ego.
+    fn write_tick(&mut self, scene: &mut SceneInProgress, tick: usize) -> Result<()> {
+        let config = self.config;
+        let keyframe = tick.is_multiple_of(KEYFRAME_EVERY);
+        let nearest_key =
+            ((tick + KEYFRAME_EVERY / 2) / KEYFRAME_EVERY).min(scene.keyframe_ticks.len() - 1);
+        let sample_token = scene.sample_tokens[nearest_key].clone();
+        let folder = if keyframe { "samples" } else { "sweeps" };
+        let lidar_time = scene.world.tick_time_us(tick);
+        let name = &scene.name;
 
-            // LiDAR at the tick time.
-            let global_from_ego = world.global_from_ego(lidar_time);
-            let global_from_lidar = global_from_ego * ego_from_lidar();
-            let snapshot = world.snapshot(lidar_time);
-            let noise_seed = seed.wrapping_mul(1_000_003).wrapping_add(tick as u64);
-            let (points, _ids) =
-                scan_lidar(&snapshot, &config.lidar, &global_from_lidar, noise_seed);
-            summary.lidar_points += points.len();
-            let file = format!("{folder}/LIDAR_TOP/{name}__LIDAR_TOP__{lidar_time}.pcd.bin");
-            write_file(
-                &out.join(&file),
-                &encode_points(&points, LidarLayout::NuScenes),
-            )?;
+        for (i, mount) in CAMERAS.iter().enumerate() {
+            let time = lidar_time + mount.offset_us;
+            let global_from_ego = scene.world.global_from_ego(time);
+            let global_from_camera = global_from_ego * mount.ego_from_camera();
+            let snapshot = scene.world.snapshot(time);
+            let intrinsics = mount.intrinsics(config.camera_width, config.camera_height);
+            let (image, _) = render_camera(&snapshot, &intrinsics, &global_from_camera, config.far);
+            let (bytes, extension) = encode_image(&image, config.image_encoding)?;
+            let file = format!(
+                "{folder}/{}/{name}__{}__{time}.{extension}",
+                mount.channel.name(),
+                mount.channel.name()
+            );
+            write_file(&self.out.join(&file), &bytes)?;
             push_sample_data(
-                &mut tables,
-                &mut previous_data[6],
-                key,
+                &mut self.tables,
+                &mut scene.previous_data[i],
+                scene.key,
                 &sample_token,
-                &calib_tokens[6],
-                lidar_time,
+                &scene.calib_tokens[i],
+                time,
                 &global_from_ego,
                 keyframe,
                 &file,
-                "pcd",
-                0,
-                0,
+                extension,
+                config.camera_width,
+                config.camera_height,
             );
+        }
 
-            if keyframe {
-                summary.keyframes += 1;
-                let ego = world.ego_position(lidar_time);
-                for (instance, body, moving) in world.vehicles_at(lidar_time) {
-                    if (body.center - ego).length() > 60.0 || (body.center - ego).length() < 3.0 {
-                        continue;
-                    }
-                    let instance_token = token(key, "instance", u64::from(instance));
-                    let index = tables.sample_annotation.len();
-                    // The box is the body's, grown by `BOX_PAD_M` on every side: the returns
-                    // lie on the body's faces, and a box drawn exactly through them holds only
-                    // the ones rounding puts inside. Its count is what the devkit's
-                    // `points_in_box` finds in it.
-                    let size = [
-                        body.size.x + 2.0 * BOX_PAD_M,
-                        body.size.y + 2.0 * BOX_PAD_M,
-                        body.size.z + 2.0 * BOX_PAD_M,
-                    ];
-                    let global_from_box = Pose::from_rotation_translation(
-                        DQuat::from_rotation_z(body.yaw),
-                        glam::DVec3::new(body.center.x, body.center.y, body.size.z * 0.5),
-                    );
-                    let num_lidar_pts =
-                        points_in_box(&points, &global_from_lidar, &global_from_box, size);
-                    let visibility = super::schema::visibility_token(
-                        &snapshot,
-                        global_from_lidar.translation,
-                        &body,
-                        instance,
-                    );
-                    tables.sample_annotation.push(SampleAnnotation {
-                        token: token(
-                            key,
-                            "sample_annotation",
-                            index as u64 * 7919 + u64::from(instance),
-                        ),
-                        sample_token: sample_tokens[tick / KEYFRAME_EVERY].clone(),
-                        instance_token: instance_token.clone(),
-                        visibility_token: visibility.into(),
-                        attribute_tokens: vec![super::schema::attribute_token(if moving {
-                            "vehicle.moving"
-                        } else {
-                            "vehicle.parked"
-                        })],
-                        translation: [body.center.x, body.center.y, body.size.z * 0.5],
-                        size,
-                        rotation: {
-                            let q = DQuat::from_rotation_z(body.yaw);
-                            [q.w, q.x, q.y, q.z]
-                        },
-                        prev: String::new(),
-                        next: String::new(),
-                        num_lidar_pts,
-                        num_radar_pts: 0,
-                    });
-                    annotation_chain
-                        .entry(instance_token)
-                        .or_default()
-                        .push(index);
-                }
+        let global_from_ego = scene.world.global_from_ego(lidar_time);
+        let global_from_lidar = global_from_ego * ego_from_lidar();
+        let snapshot = scene.world.snapshot(lidar_time);
+        let noise_seed = scene.seed.wrapping_mul(1_000_003).wrapping_add(tick as u64);
+        let (points, _ids) = scan_lidar(&snapshot, &config.lidar, &global_from_lidar, noise_seed);
+        self.summary.lidar_points += points.len();
+        let file = format!("{folder}/LIDAR_TOP/{name}__LIDAR_TOP__{lidar_time}.pcd.bin");
+        write_file(
+            &self.out.join(&file),
+            &encode_points(&points, LidarLayout::NuScenes),
+        )?;
+        push_sample_data(
+            &mut self.tables,
+            &mut scene.previous_data[6],
+            scene.key,
+            &sample_token,
+            &scene.calib_tokens[6],
+            lidar_time,
+            &global_from_ego,
+            keyframe,
+            &file,
+            "pcd",
+            0,
+            0,
+        );
+
+        if keyframe {
+            self.summary.keyframes += 1;
+            let sweep = Sweep {
+                time_us: lidar_time,
+                points: &points,
+                global_from_lidar,
+                snapshot: &snapshot,
+            };
+            self.annotate(scene, &scene.sample_tokens[tick / KEYFRAME_EVERY], &sweep);
+        }
+        self.summary.frames += 1;
+        Ok(())
+    }
+
+    /// The keyframe's annotations: every vehicle between 3 and 60 m of the ego, its box, its
+    /// motion, its LiDAR count and its visibility.
+    fn annotate(&mut self, scene: &SceneInProgress, sample_token: &str, sweep: &Sweep) {
+        let ego = scene.world.ego_position(sweep.time_us);
+        for (instance, body, moving) in scene.world.vehicles_at(sweep.time_us) {
+            if (body.center - ego).length() > 60.0 || (body.center - ego).length() < 3.0 {
+                continue;
             }
-            summary.frames += 1;
-            progress(summary.frames, total);
+            let instance_token = token(scene.key, "instance", u64::from(instance));
+            let index = self.tables.sample_annotation.len();
+            // The box is the body's, grown by `BOX_PAD_M` on every side: the returns lie on
+            // the body's faces, and a box drawn exactly through them holds only the ones
+            // rounding puts inside. Its count is what the devkit's `points_in_box` finds in it.
+            let size = [
+                body.size.x + 2.0 * BOX_PAD_M,
+                body.size.y + 2.0 * BOX_PAD_M,
+                body.size.z + 2.0 * BOX_PAD_M,
+            ];
+            let global_from_box = Pose::from_rotation_translation(
+                DQuat::from_rotation_z(body.yaw),
+                glam::DVec3::new(body.center.x, body.center.y, body.size.z * 0.5),
+            );
+            let num_lidar_pts = points_in_box(
+                sweep.points,
+                &sweep.global_from_lidar,
+                &global_from_box,
+                size,
+            );
+            let visibility = super::schema::visibility_token(
+                sweep.snapshot,
+                sweep.global_from_lidar.translation,
+                &body,
+                instance,
+            );
+            self.tables.sample_annotation.push(SampleAnnotation {
+                token: token(
+                    scene.key,
+                    "sample_annotation",
+                    index as u64 * 7919 + u64::from(instance),
+                ),
+                sample_token: sample_token.to_string(),
+                instance_token: instance_token.clone(),
+                visibility_token: visibility.into(),
+                attribute_tokens: vec![super::schema::attribute_token(if moving {
+                    "vehicle.moving"
+                } else {
+                    "vehicle.parked"
+                })],
+                translation: [body.center.x, body.center.y, body.size.z * 0.5],
+                size,
+                rotation: {
+                    let q = DQuat::from_rotation_z(body.yaw);
+                    [q.w, q.x, q.y, q.z]
+                },
+                prev: String::new(),
+                next: String::new(),
+                num_lidar_pts,
+                num_radar_pts: 0,
+            });
+            self.annotation_chain
+                .entry(instance_token)
+                .or_default()
+                .push(index);
         }
     }
 
-    // Link each instance's annotations and list the instances.
-    for (instance_token, indices) in &annotation_chain {
-        for w in indices.windows(2) {
-            let next = tables.sample_annotation[w[1]].token.clone();
-            let prev = tables.sample_annotation[w[0]].token.clone();
-            tables.sample_annotation[w[0]].next = next;
-            tables.sample_annotation[w[1]].prev = prev;
+    /// Links each instance's annotations, lists the instances, and writes every table and the
+    /// map's mask.
+    fn finish(mut self, started: Instant) -> Result<SynthSummary> {
+        let category = super::schema::category_token("vehicle.car");
+        let tables = &mut self.tables;
+        for (instance_token, indices) in &self.annotation_chain {
+            for w in indices.windows(2) {
+                let next = tables.sample_annotation[w[1]].token.clone();
+                let prev = tables.sample_annotation[w[0]].token.clone();
+                tables.sample_annotation[w[0]].next = next;
+                tables.sample_annotation[w[1]].prev = prev;
+            }
+            tables.instance.push(json!({
+                "token": instance_token,
+                "category_token": category,
+                "nbr_annotations": indices.len(),
+                "first_annotation_token": tables.sample_annotation[indices[0]].token,
+                "last_annotation_token": tables.sample_annotation[*indices.last().unwrap_or(&indices[0])].token,
+            }));
         }
-        tables.instance.push(json!({
-            "token": instance_token,
-            "category_token": category,
-            "nbr_annotations": indices.len(),
-            "first_annotation_token": tables.sample_annotation[indices[0]].token,
-            "last_annotation_token": tables.sample_annotation[*indices.last().unwrap_or(&indices[0])].token,
-        }));
+        let out = self.out;
+        let dir = out.join(VERSION);
+        let write_table = |name: &str, rows: &dyn erased::Rows| -> Result<()> {
+            write_file(&dir.join(format!("{name}.json")), &rows.to_json())
+        };
+        write_table("scene", &tables.scene)?;
+        write_table("sample", &tables.sample)?;
+        write_table("sample_data", &tables.sample_data)?;
+        write_table("calibrated_sensor", &tables.calibrated_sensor)?;
+        write_table("sensor", &tables.sensor)?;
+        write_table("ego_pose", &tables.ego_pose)?;
+        write_table("log", &tables.log)?;
+        write_table("sample_annotation", &tables.sample_annotation)?;
+        write_table("instance", &tables.instance)?;
+        write_table("ego_control", &tables.ego_control)?;
+        write_table("category", &super::schema::category_table())?;
+        write_table("attribute", &super::schema::attribute_table())?;
+        write_table("visibility", &super::schema::visibility_table())?;
+        let log_tokens: Vec<String> = tables.log.iter().map(|l| l.token.clone()).collect();
+        let (map, map_file) = super::schema::map_table(&log_tokens);
+        write_table("map", &map)?;
+        let mask = super::schema::drivable_area_png(&super::world::RoadSpec::default())
+            .map_err(|e| SensorError::Other(format!("the map mask: {e}")))?;
+        write_file(&out.join(map_file), &mask)?;
+        self.summary.seconds = started.elapsed().as_secs_f64();
+        Ok(self.summary)
     }
+}
 
-    let dir = out.join(VERSION);
-    let write_table = |name: &str, rows: &dyn erased::Rows| -> Result<()> {
-        write_file(&dir.join(format!("{name}.json")), &rows.to_json())
-    };
-    write_table("scene", &tables.scene)?;
-    write_table("sample", &tables.sample)?;
-    write_table("sample_data", &tables.sample_data)?;
-    write_table("calibrated_sensor", &tables.calibrated_sensor)?;
-    write_table("sensor", &tables.sensor)?;
-    write_table("ego_pose", &tables.ego_pose)?;
-    write_table("log", &tables.log)?;
-    write_table("sample_annotation", &tables.sample_annotation)?;
-    write_table("instance", &tables.instance)?;
-    write_table("ego_control", &tables.ego_control)?;
-    write_table("category", &super::schema::category_table())?;
-    write_table("attribute", &super::schema::attribute_table())?;
-    write_table("visibility", &super::schema::visibility_table())?;
-    let log_tokens: Vec<String> = tables.log.iter().map(|l| l.token.clone()).collect();
-    let (map, map_file) = super::schema::map_table(&log_tokens);
-    write_table("map", &map)?;
-    let mask = super::schema::drivable_area_png(&super::world::RoadSpec::default())
-        .map_err(|e| SensorError::Other(format!("the map mask: {e}")))?;
-    write_file(&out.join(map_file), &mask)?;
-    summary.seconds = started.elapsed().as_secs_f64();
-    Ok(summary)
+/// A keyframe's sweep, as the annotations read it.
+struct Sweep<'p> {
+    time_us: i64,
+    points: &'p [bevworld_types::LidarPoint],
+    global_from_lidar: Pose,
+    snapshot: &'p super::render::Snapshot,
 }
 
 mod erased {

@@ -264,96 +264,22 @@ pub fn train(
     if request.until == Some(0) {
         return Err(RunError::NoSteps);
     }
-    // A checkpoint that fails its checks is still a run's: never start over it, and refuse to
-    // resume from it before any data load.
-    let has_checkpoint = match (checkpoint::latest(&request.out), request.resume) {
-        (Err(checkpoint::CheckpointError::None { .. }), _) => false,
-        (Ok(_), true) => true,
-        (_, false) => {
-            return Err(RunError::Exists {
-                run: request.out.clone(),
-            });
-        }
-        (Err(error), true) => return Err(error.into()),
-    };
+    let has_checkpoint = existing_checkpoint(request)?;
     let device = device.clone().autodiff();
     let device = &device;
     let tokenizer = tokenizer_identity(&config.tokenizer_weights)?;
-    let expected = tokenizer.expected(&model_config, config.gap_factor);
-    let sweeps = load_sequences(&config.train.latents, SWEEPS_INDEX, &expected)?;
-    let keyframes = load_sequences(&config.train.latents, KEYFRAMES_INDEX, &expected)?;
-    let val = load_sequences(&config.val.latents, KEYFRAMES_INDEX, &expected)?;
-    let branches = match config.branches_in_use() {
-        Some(cache) => Some((
-            load_sequences(&cache.latents, SWEEPS_INDEX, &expected)?,
-            load_sequences(&cache.latents, KEYFRAMES_INDEX, &expected)?,
-        )),
-        None => None,
-    };
-    // The model runs at keyframes: its actions are normalised with the keyframe actions'
-    // statistics.
-    let action_stats = ActionStats::compute(keyframes.actions().iter())?;
-    let shape = WindowShape::of(&model_config);
-    let validation: Vec<WindowValues> = spread_windows(
-        &val,
-        shape.context + shape.future,
-        config.validation.windows,
-    )
-    .into_iter()
-    .map(|(s, start)| WindowValues::cut(&val.sequences[s], start, &shape, &action_stats))
-    .collect();
-    let train_frames = (sweeps.frames(), keyframes.frames());
-    let gaps = sweeps.gaps + keyframes.gaps + val.gaps;
-    let branched = branches
-        .as_ref()
-        .map_or(String::new(), |(sweeps, keyframes)| {
-            format!(
-                ", and {} branched sweeps ({} scenes)",
-                sweeps.frames(),
-                keyframes.sequences.len()
-            )
-        });
-    progress.prepared(&format!(
-        "{} sweeps and {} keyframes to learn from ({} scenes){branched}, {} validation windows; {} gaps split",
-        train_frames.0,
-        train_frames.1,
-        keyframes.sequences.len(),
-        validation.len(),
-        gaps
-    ));
-
-    std::fs::create_dir_all(&request.out).map_err(io(&request.out))?;
-    // The configs as trained, overrides applied, for `eval world-model --model`.
-    let written = |name: &str, text: Result<String, String>| -> Result<(), RunError> {
-        let target = request.out.join(name);
-        let text = text.map_err(|message| RunError::Override {
-            flag: "the overrides",
-            message,
-        })?;
-        bevworld_atomic_file::write(&target, text.as_bytes()).map_err(io(&target))
-    };
-    written(
-        "train-config.yaml",
-        serde_saphyr::to_string(&config).map_err(|e| e.to_string()),
-    )?;
-    written(
-        "model-config.yaml",
-        serde_saphyr::to_string(&model_config).map_err(|e| e.to_string()),
-    )?;
+    let prepared = prepare_data(&config, &model_config, &tokenizer)?;
+    progress.prepared(&prepared.description);
+    write_configs(&request.out, &config, &model_config)?;
     let threads = request
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
-    let data = TrainingData {
-        sweeps,
-        keyframes,
-        branches,
-        validation,
-    };
+    let action_stats = prepared.action_stats.clone();
     let mut trainer = WorldModelTrainer::new(
         config.clone(),
         model_config.clone(),
         action_stats.clone(),
-        data,
+        prepared.data,
         device,
         threads,
     )?;
@@ -409,7 +335,122 @@ pub fn train(
         curves,
         scores,
         action_stats,
+        train_frames: prepared.train_frames,
+        gaps: prepared.gaps,
+    })
+}
+
+/// Whether the run folder holds a checkpoint to resume. A checkpoint that fails its checks is
+/// still a run's: never start over it, and refuse to resume from it before any data load.
+fn existing_checkpoint(request: &TrainRequest) -> Result<bool, RunError> {
+    match (checkpoint::latest(&request.out), request.resume) {
+        (Err(checkpoint::CheckpointError::None { .. }), _) => Ok(false),
+        (Ok(_), true) => Ok(true),
+        (_, false) => Err(RunError::Exists {
+            run: request.out.clone(),
+        }),
+        (Err(error), true) => Err(error.into()),
+    }
+}
+
+/// What a run learns from, read from the caches.
+struct PreparedData {
+    data: TrainingData,
+    /// The keyframe actions' statistics, which the model's actions are normalised with.
+    action_stats: ActionStats,
+    /// Training frames: (sweeps, keyframes).
+    train_frames: (usize, usize),
+    /// Time gaps the sequences were split at.
+    gaps: usize,
+    /// One line for the progress report.
+    description: String,
+}
+
+/// The training caches (sweeps, keyframes, and the branched cache's when a stage uses it) and
+/// the validation windows, each checked to hold the latents of `tokenizer` for the model.
+fn prepare_data(
+    config: &TrainWorldModelConfig,
+    model_config: &WorldModelConfig,
+    tokenizer: &TokenizerIdentity,
+) -> Result<PreparedData, RunError> {
+    let expected = tokenizer.expected(model_config, config.gap_factor);
+    let sweeps = load_sequences(&config.train.latents, SWEEPS_INDEX, &expected)?;
+    let keyframes = load_sequences(&config.train.latents, KEYFRAMES_INDEX, &expected)?;
+    let val = load_sequences(&config.val.latents, KEYFRAMES_INDEX, &expected)?;
+    let branches = match config.branches_in_use() {
+        Some(cache) => Some((
+            load_sequences(&cache.latents, SWEEPS_INDEX, &expected)?,
+            load_sequences(&cache.latents, KEYFRAMES_INDEX, &expected)?,
+        )),
+        None => None,
+    };
+    // The model runs at keyframes: its actions are normalised with the keyframe actions'
+    // statistics.
+    let action_stats = ActionStats::compute(keyframes.actions().iter())?;
+    let shape = WindowShape::of(model_config);
+    let validation: Vec<WindowValues> = spread_windows(
+        &val,
+        shape.context + shape.future,
+        config.validation.windows,
+    )
+    .into_iter()
+    .map(|(s, start)| WindowValues::cut(&val.sequences[s], start, &shape, &action_stats))
+    .collect();
+    let train_frames = (sweeps.frames(), keyframes.frames());
+    let gaps = sweeps.gaps + keyframes.gaps + val.gaps;
+    let branched = branches
+        .as_ref()
+        .map_or(String::new(), |(sweeps, keyframes)| {
+            format!(
+                ", and {} branched sweeps ({} scenes)",
+                sweeps.frames(),
+                keyframes.sequences.len()
+            )
+        });
+    let description = format!(
+        "{} sweeps and {} keyframes to learn from ({} scenes){branched}, {} validation windows; {} gaps split",
+        train_frames.0,
+        train_frames.1,
+        keyframes.sequences.len(),
+        validation.len(),
+        gaps
+    );
+    Ok(PreparedData {
+        data: TrainingData {
+            sweeps,
+            keyframes,
+            branches,
+            validation,
+        },
+        action_stats,
         train_frames,
         gaps,
+        description,
     })
+}
+
+/// The configs as trained, overrides applied, into the run folder (for `eval world-model
+/// --model`).
+fn write_configs(
+    out: &Path,
+    config: &TrainWorldModelConfig,
+    model_config: &WorldModelConfig,
+) -> Result<(), RunError> {
+    std::fs::create_dir_all(out).map_err(io(out))?;
+    let written = |name: &str, text: Result<String, String>| -> Result<(), RunError> {
+        let target = out.join(name);
+        let text = text.map_err(|message| RunError::Override {
+            flag: "the overrides",
+            message,
+        })?;
+        bevworld_atomic_file::write(&target, text.as_bytes()).map_err(io(&target))
+    };
+    written(
+        "train-config.yaml",
+        serde_saphyr::to_string(config).map_err(|e| e.to_string()),
+    )?;
+    written(
+        "model-config.yaml",
+        serde_saphyr::to_string(model_config).map_err(|e| e.to_string()),
+    )
 }
