@@ -34,10 +34,12 @@ fn main() {
     match args.as_slice() {
         [mode, dir] if mode == "dump" => dump(Path::new(dir)),
         [mode, dir] if mode == "report" => report(Path::new(dir)),
+        // The page again from the machines' JSON files, as `report` writes it.
+        [mode] if mode == "page" => write_page(&bevworld_bench::results_dir()),
         [mode, stage, runs] if mode == "profile" => profile(stage, runs.parse().unwrap_or(50)),
         _ => {
             eprintln!(
-                "usage: vs_pytorch dump DIR | vs_pytorch report DIR | \
+                "usage: vs_pytorch dump DIR | vs_pytorch report DIR | vs_pytorch page | \
                  vs_pytorch profile encoder|lift|render|skipping|world_model RUNS (one stage in a loop, for perf)"
             );
             std::process::exit(2);
@@ -565,14 +567,24 @@ fn write_page(results: &Path) {
 
 /// One machine's table, its agreement and setup, and its goals, met or missed.
 fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
+    draw_bars(results, kind, record);
+    format!(
+        "## {kind}\n\nMachine: {}\n\n{}\n{}\n\n{}\n\n{}\n\n### Goals on this machine\n\n{}\n\n![ours \
+         against PyTorch on {kind}](vs-pytorch-{kind}.svg)\n",
+        machine_line(record),
+        stage_table(record),
+        matmul_line(record),
+        agreement(record),
+        input_line(record),
+        goals(record).join("\n")
+    )
+}
+
+/// Per stage: ours and PyTorch's times, their ratios, and the rates.
+fn stage_table(record: &Value) -> String {
     let ours = &record["ours"];
     let meta = &record["meta"];
     let torch = record.get("torch").filter(|t| !t.is_null());
-    let machine = &record["machine"];
-    let simd: Vec<&str> = machine["simd"]
-        .as_array()
-        .map(|a| a.iter().filter_map(Value::as_str).collect())
-        .unwrap_or_default();
     let mut rows = Vec::new();
     for (label, key, flop_key) in STAGES {
         let field = format!("{key}_ms");
@@ -602,7 +614,7 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
             format!("{} / {}", rate(ours2), rate(eager2)),
         ]);
     }
-    let table = markdown_table(
+    markdown_table(
         &[
             "stage",
             "ours, 1 thread (ms)",
@@ -616,8 +628,18 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
             "GFLOP/s ours / eager (2 threads)",
         ],
         &rows,
-    );
-    let machine_line = format!(
+    )
+}
+
+/// The CPU, its vector instructions and the kernels each side ran.
+fn machine_line(record: &Value) -> String {
+    let machine = &record["machine"];
+    let torch = record.get("torch").filter(|t| !t.is_null());
+    let simd: Vec<&str> = machine["simd"]
+        .as_array()
+        .map(|a| a.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    format!(
         "{} cores, {}; vector instructions: {}; our host kernels dispatch to {}, matrix products \
          run {}{}.",
         machine["cores"]
@@ -638,15 +660,27 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
             .map_or(String::new(), |c| format!(
                 "; PyTorch's CPU capability: {c}"
             )),
-    );
-    let matmul_line = format!(
+    )
+}
+
+/// The 512² matmul rate of both sides.
+fn matmul_line(record: &Value) -> String {
+    let ours = &record["ours"];
+    let torch = record.get("torch").filter(|t| !t.is_null());
+    format!(
         "Matmul rate at 512², same run: ours {} / {} GFLOP/s on 1 / 2 threads; PyTorch {} / {}.",
         ms(get(ours, &["1", "matmul_gflops"])),
         ms(get(ours, &["2", "matmul_gflops"])),
         ms(torch.and_then(|t| get(t, &["eager", "1", "matmul_gflops"]))),
         ms(torch.and_then(|t| get(t, &["eager", "2", "matmul_gflops"]))),
-    );
-    let agreement = match torch {
+    )
+}
+
+/// How far the reference's outputs are from ours, and its build.
+fn agreement(record: &Value) -> String {
+    let meta = &record["meta"];
+    let torch = record.get("torch").filter(|t| !t.is_null());
+    match torch {
         Some(t) => {
             let a = |key: &str| t["agreement"][key].as_f64().unwrap_or(f64::NAN);
             format!(
@@ -669,8 +703,14 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
         None => "PyTorch was not found, so only our side ran: `bench/scripts/vs-pytorch.sh` \
                  says how to install it."
             .into(),
-    };
-    let input = format!(
+    }
+}
+
+/// The input, the weights and how the times were taken.
+fn input_line(record: &Value) -> String {
+    let ours = &record["ours"];
+    let meta = &record["meta"];
+    format!(
         "Input: the real nuScenes keyframe ({} pillars, {} camera rays, {} LiDAR rays, {} \
          samples each, rendered in chunks of {} rays on both sides), the weights `{}` (digest \
          `{}`). Each time is the median over {} rounds run alternately (ours, then PyTorch) of \
@@ -689,8 +729,13 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
             .map_or("?".into(), |r| r.to_string()),
         ms(get(ours, &["1", "inputs_ms"])),
         ms(get(ours, &["2", "inputs_ms"])),
-    );
-    // The goals of issue 55, checked on this machine's figures.
+    )
+}
+
+/// The goals of issue 55, checked on this machine's figures.
+fn goals(record: &Value) -> Vec<String> {
+    let ours = &record["ours"];
+    let torch = record.get("torch").filter(|t| !t.is_null());
     let mut goals = Vec::new();
     for (threads, label) in [("1", "1 thread"), ("2", "2 threads")] {
         let mine = get(ours, &[threads, "matmul_gflops"]);
@@ -746,6 +791,13 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
          on 2 ({:.2}× speed-up)",
         enc1 / enc2
     ));
+    goals
+}
+
+/// The stages' times on 2 threads, ours beside PyTorch's, as bars.
+fn draw_bars(results: &Path, kind: &str, record: &Value) {
+    let ours = &record["ours"];
+    let torch = record.get("torch").filter(|t| !t.is_null());
     let plot = results.join(format!("vs-pytorch-{kind}.svg"));
     let mut bars = Vec::new();
     for (label, key, _) in STAGES {
@@ -777,12 +829,6 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
     ) {
         eprintln!("plot: {error}");
     }
-    format!(
-        "## {kind}\n\nMachine: {machine_line}\n\n{table}\n{matmul_line}\n\n{agreement}\n\n\
-         {input}\n\n### Goals on this machine\n\n{}\n\n![ours against PyTorch on \
-         {kind}](vs-pytorch-{kind}.svg)\n",
-        goals.join("\n")
-    )
 }
 
 /// What holds on every machine: why the misses are misses, and the training step.

@@ -97,13 +97,19 @@ fn draw(
                 .x_desc(&describe)
                 .label_style((FAMILY, 13))
                 .draw()?;
-            chart.draw_series(
-                Histogram::horizontal(&chart)
-                    .style(colour.filled())
-                    .margin(5)
-                    .baseline($floor)
-                    .data(bars),
-            )?;
+            // One rectangle per bar, in the items' order: plotters' `Histogram` sums its data
+            // in a hash map, so the same figures gave an SVG in another order on every run.
+            chart.draw_series(bars.map(|(row, v)| {
+                let mut bar = Rectangle::new(
+                    [
+                        ($floor, SegmentValue::Exact(row)),
+                        (v, SegmentValue::Exact(row + 1)),
+                    ],
+                    colour.filled(),
+                );
+                bar.set_margin(5, 5, 0, 0);
+                bar
+            }))?;
             chart.draw_series(values.map(|(row, v)| {
                 Text::new(
                     format_value(v),

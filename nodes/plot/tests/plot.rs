@@ -129,6 +129,40 @@ fn bars_name_every_row_and_value_and_leave_out_what_cannot_be_drawn() {
 }
 
 #[test]
+fn the_same_bars_give_the_same_svg_with_the_bars_in_the_items_order() {
+    let dir = tempfile::tempdir().expect("dir");
+    let items: Vec<(String, f64)> = (0..12)
+        .map(|i| (format!("stage {i}"), 10.0 + f64::from(i) * 7.0))
+        .collect();
+    let (first, second) = (dir.path().join("a.svg"), dir.path().join("b.svg"));
+    bars_svg(&first, "stages", "ms", &items, false).expect("svg");
+    bars_svg(&second, "stages", "ms", &items, false).expect("svg");
+    let svg = std::fs::read_to_string(&first).expect("read");
+    assert_eq!(svg, std::fs::read_to_string(&second).expect("read"));
+    // Row 0 at the top: each bar lower and wider than the one before.
+    let bars: Vec<(u32, u32)> = svg
+        .lines()
+        .filter(|line| line.starts_with("<rect") && line.contains("#3B6EA8"))
+        .map(|line| {
+            let number = |key: &str| -> u32 {
+                let rest = line.split(&format!(" {key}=\"")).nth(1).expect("attribute");
+                rest.split('"')
+                    .next()
+                    .expect("value")
+                    .parse()
+                    .expect("number")
+            };
+            (number("y"), number("width"))
+        })
+        .collect();
+    assert_eq!(bars.len(), items.len(), "{svg}");
+    assert!(
+        bars.windows(2).all(|w| w[1].0 > w[0].0 && w[1].1 > w[0].1),
+        "{bars:?}"
+    );
+}
+
+#[test]
 fn a_scatter_writes_its_points_and_reference_lines() {
     let dir = tempfile::tempdir().expect("dir");
     let path = dir.path().join("scatter.png");
