@@ -294,6 +294,8 @@ mod tests {
 
     fn car(x: f64, y: f64, speed: f64) -> ObjectBox {
         ObjectBox {
+            attributes: Vec::new(),
+            num_pts: 1,
             instance_token: format!("car{x}"),
             category: "vehicle.car".into(),
             global_from_box: Pose::from_rotation_translation(

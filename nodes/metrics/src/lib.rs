@@ -5,6 +5,7 @@
 
 pub mod agents;
 pub mod chamfer;
+pub mod detection;
 pub mod fid;
 pub mod forecast_node;
 pub mod frechet;

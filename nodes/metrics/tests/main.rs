@@ -4,6 +4,7 @@
 //! 500 MB apiece, for the same tests.
 
 mod chamfer;
+mod detection;
 mod fid;
 mod frechet;
 #[path = "image.rs"]

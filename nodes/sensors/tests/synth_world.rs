@@ -485,6 +485,12 @@ fn keyframes_carry_their_boxes_with_category_and_velocity() {
     .unwrap();
     let (_, annotations) =
         read_table::<SampleAnnotation>(&dir.path().join(VERSION), "sample_annotation").unwrap();
+    let written_moving = |annotation: &SampleAnnotation| {
+        annotation.attribute_tokens
+            == [bevworld_sensors::synth::schema::attribute_token(
+                "vehicle.moving",
+            )]
+    };
     let mut keyframes_with_boxes = 0;
     let (mut moving, mut standing) = (0, 0);
     for index in 0..reader.len() {
@@ -504,10 +510,18 @@ fn keyframes_carry_their_boxes_with_category_and_velocity() {
         for (object, annotation) in frame.boxes.iter().zip(&annotated) {
             assert_eq!(object.category, "vehicle.car");
             assert_eq!(object.instance_token, annotation.instance_token);
-            let written_moving = annotation.attribute_tokens
-                == [bevworld_sensors::synth::schema::attribute_token(
-                    "vehicle.moving",
-                )];
+            // The attribute by name, and the returns as the table counts them.
+            let attribute = if written_moving(annotation) {
+                "vehicle.moving"
+            } else {
+                "vehicle.parked"
+            };
+            assert_eq!(object.attributes, [attribute]);
+            assert_eq!(
+                object.num_pts,
+                annotation.num_lidar_pts + annotation.num_radar_pts
+            );
+            let written_moving = written_moving(annotation);
             // An agent annotated at one keyframe only has no velocity; every other one's speed
             // says whether the world drove it.
             if object.velocity.is_some() {
@@ -586,6 +600,12 @@ fn broken_annotations_are_refused_naming_table_record_and_field() {
             "category_token",
             serde_json::json!("nothing"),
             "dangling token 'nothing'",
+        ),
+        (
+            "sample_annotation",
+            "attribute_tokens",
+            serde_json::json!(["unheard-of"]),
+            "dangling token 'unheard-of'",
         ),
     ] {
         let message = edit(table, field, value);

@@ -13,6 +13,7 @@
 pub mod action;
 pub mod bev;
 pub mod camera;
+pub mod detection;
 pub mod digest;
 pub mod ego_body;
 pub mod forecast;
@@ -32,6 +33,7 @@ pub mod splitmix;
 pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
+pub use detection::{Detection, DetectionResults, SubmissionMeta, detection_name_of};
 pub use digest::{bytes_digest, file_digest};
 pub use ego_body::EgoBody;
 pub use forecast::{

@@ -20,6 +20,12 @@ pub struct ObjectBox {
     /// Planar velocity in the global frame, m/s, from its previous and next annotations (as
     /// the nuScenes devkit's `box_velocity`); `None` for an object annotated once.
     pub velocity: Option<[f64; 2]>,
+    /// Its attributes' names (`vehicle.moving`, `pedestrian.standing`, …); nuScenes gives at
+    /// most one.
+    pub attributes: Vec<String>,
+    /// LiDAR and radar returns inside it, as the dataset counts them: a box with none is not
+    /// scored by the detection metrics.
+    pub num_pts: i64,
 }
 
 /// How fast an object must go to count as moving, m/s: below it, annotation noise.
@@ -122,6 +128,8 @@ mod tests {
 
     fn car(x: f64, y: f64, yaw: f64, velocity: Option<[f64; 2]>) -> ObjectBox {
         ObjectBox {
+            attributes: Vec::new(),
+            num_pts: 1,
             instance_token: format!("car@{x},{y}"),
             category: "vehicle.car".into(),
             global_from_box: Pose::from_rotation_translation(

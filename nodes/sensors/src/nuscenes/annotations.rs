@@ -7,7 +7,7 @@ use std::path::Path;
 
 use bevworld_types::{ObjectBox, pose_from_translation_quaternion};
 
-use super::tables::{Category, Instance, Sample, SampleAnnotation, read_table};
+use super::tables::{Attribute, Category, Instance, Sample, SampleAnnotation, read_table};
 use crate::error::{Result, SensorError};
 
 /// The devkit's `box_velocity` gives up on neighbours further apart than this, seconds.
@@ -43,6 +43,16 @@ pub fn boxes_by_sample(dir: &Path, samples: &[Sample]) -> Result<HashMap<String,
             })?;
         category_of_instance.insert(instance.token.as_str(), name);
     }
+    // Only read when an annotation names an attribute: a set without attributes may lack it.
+    let attributes = if annotations.iter().any(|a| !a.attribute_tokens.is_empty()) {
+        read_table::<Attribute>(dir, "attribute")?.1
+    } else {
+        Vec::new()
+    };
+    let attribute_of: HashMap<&str, &str> = attributes
+        .iter()
+        .map(|a| (a.token.as_str(), a.name.as_str()))
+        .collect();
     let time_of: HashMap<&str, i64> = samples
         .iter()
         .map(|s| (s.token.as_str(), s.timestamp))
@@ -74,6 +84,16 @@ pub fn boxes_by_sample(dir: &Path, samples: &[Sample]) -> Result<HashMap<String,
             .ok_or_else(|| {
                 dangling("instance_token", &annotation.instance_token, &instance_path)
             })?;
+        let attribute_names = annotation
+            .attribute_tokens
+            .iter()
+            .map(|token| {
+                attribute_of
+                    .get(token.as_str())
+                    .map(|name| (*name).to_string())
+                    .ok_or_else(|| dangling("attribute_tokens", token, &dir.join("attribute.json")))
+            })
+            .collect::<Result<Vec<_>>>()?;
         for (field, token) in [("prev", &annotation.prev), ("next", &annotation.next)] {
             if !token.is_empty() && !by_token.contains_key(token.as_str()) {
                 return Err(dangling(field, token, &path));
@@ -130,6 +150,8 @@ pub fn boxes_by_sample(dir: &Path, samples: &[Sample]) -> Result<HashMap<String,
                 global_from_box,
                 size: annotation.size,
                 velocity: velocity.filter(|v| v.iter().all(|x| x.is_finite())),
+                attributes: attribute_names,
+                num_pts: annotation.num_lidar_pts + annotation.num_radar_pts,
             });
     }
     Ok(boxes)

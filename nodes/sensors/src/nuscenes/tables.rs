@@ -110,6 +110,13 @@ pub struct Instance {
     pub category_token: String,
 }
 
+/// An attribute an annotation may carry, e.g. `vehicle.parked`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+pub struct Attribute {
+    pub token: String,
+    pub name: String,
+}
+
 /// A category of objects, e.g. `vehicle.car`.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 pub struct Category {
