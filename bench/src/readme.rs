@@ -301,6 +301,25 @@ fn devkit(f: &mut Figures) -> Result<Row, ReadmeError> {
     ))
 }
 
+fn detection_metrics(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "detection-devkit-pipeline";
+    let difference = f.number(file, "/largest_difference")?;
+    Ok((
+        format!(
+            "`eval detector` against the official {} on a synthetic set",
+            f.text(file, "/devkit")?
+        ),
+        format!(
+            "NDS {:.4} ours, {:.4} the devkit's; largest difference in mAP, NDS and the errors {difference:.1e} over {} keyframes (target ≤ 1e-9: {})",
+            f.number(file, "/our_scores/nd_score")?,
+            f.number(file, "/devkit_scores/nd_score")?,
+            f.count(file, "/set/samples")?,
+            verdict(difference <= 1e-9)
+        ),
+        "[detection-metrics.md](bench/results/detection-metrics.md)",
+    ))
+}
+
 fn lidar_depth(f: &mut Figures) -> Result<Row, ReadmeError> {
     let file = "lidar_depth-synth-val";
     let last = f.count(file, "/by_range")?.saturating_sub(1);
@@ -581,6 +600,7 @@ pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
         agents(&mut f)?,
         control(&mut f)?,
         devkit(&mut f)?,
+        detection_metrics(&mut f)?,
         lidar_depth(&mut f)?,
         inference(&mut f)?,
         vs_pytorch(&mut f, &["amd-epyc", "intel-xeon-avx512"])?,

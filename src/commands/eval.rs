@@ -34,6 +34,10 @@ pub enum EvalCommand {
     /// and LiDAR Chamfer, each scene's mean and the spread over scenes; runs the reconstruct
     /// graph.
     Tokenizer(crate::commands::reconstruction_eval::TokenizerEvalArgs),
+    /// A detector's boxes (`results_nusc.json`) against a dataset's annotations, with the
+    /// nuScenes detection metrics as the official devkit computes them: per class AP and
+    /// true-positive errors, mAP and NDS.
+    Detector(crate::commands::detector_eval::DetectorEvalArgs),
 }
 
 #[derive(Args)]
@@ -207,6 +211,7 @@ pub fn run(command: &EvalCommand) -> Result<ExitCode> {
         EvalCommand::Fid(args) => fid_command(args),
         EvalCommand::WorldModel(args) => world_model(args),
         EvalCommand::Tokenizer(args) => crate::commands::reconstruction_eval::run(args),
+        EvalCommand::Detector(args) => crate::commands::detector_eval::run(args),
     }
 }
 

@@ -2,6 +2,7 @@
 
 pub mod contracts;
 pub mod control;
+pub mod detector_eval;
 pub mod eval;
 pub mod graph_run;
 pub mod inspect;

@@ -25,6 +25,7 @@ fn truth(boxes: Vec<Detection>) -> BTreeMap<String, SampleTruth> {
         "s".to_string(),
         SampleTruth {
             ego_translation: [0.0, 0.0, 0.0],
+            bike_racks: Vec::new(),
             boxes: boxes
                 .into_iter()
                 .map(|detection| TrueBox {
@@ -331,4 +332,33 @@ fn the_synthetic_truth_scored_against_itself_is_perfect() {
     );
     let unseen = evaluate(&config, &truth, &given_back(0.0, true)).expect("scores");
     assert!(unseen.mean_ap < 1.0 - 1e-6, "{unseen:?}");
+}
+
+#[test]
+fn a_cycle_parked_in_a_bike_rack_is_not_scored() {
+    use bevworld_types::{ObjectBox, Pose};
+    let mut bicycle = car("s", 8.0, 3.0, -1.0);
+    bicycle.detection_name = "bicycle".into();
+    bicycle.size = [0.6, 1.8, 1.2];
+    bicycle.attribute_name = "cycle.without_rider".into();
+    let mut predicted = bicycle.clone();
+    predicted.detection_score = 0.7;
+    let rack = ObjectBox {
+        instance_token: "rack".into(),
+        category: "static_object.bicycle_rack".into(),
+        global_from_box: Pose::from_translation(glam::DVec3::new(8.0, 3.0, 0.75)),
+        size: [3.0, 6.0, 1.5],
+        velocity: None,
+        attributes: Vec::new(),
+        num_pts: 0,
+    };
+    let config = DetectionConfig::for_classes(&["bicycle"]);
+    let predictions = BTreeMap::from([("s".to_string(), vec![predicted])]);
+    let mut with_rack = truth(vec![bicycle]);
+    let free = evaluate(&config, &with_rack, &predictions).expect("scores");
+    assert!(near(free.mean_ap, 1.0), "{free:?}");
+    with_rack.get_mut("s").expect("s").bike_racks.push(rack);
+    let parked = evaluate(&config, &with_rack, &predictions).expect("scores");
+    // The truth is gone, so the class has nothing to find: AP 0, as the devkit gives it.
+    assert!(near(parked.mean_ap, 0.0), "{parked:?}");
 }

@@ -6,8 +6,8 @@
 //!
 //! NDS = (5 · mAP + Σ_tp max(0, 1 − mTP)) / 10.
 //!
-//! One difference, said where it applies: the devkit also drops bicycles and motorcycles
-//! parked in a map's bike racks; we score no map layer, and the synthetic world has no racks.
+//! The filters are the devkit's: each class's range from the ego, true boxes without a
+//! return, and cycles parked in an annotated bicycle rack.
 
 pub mod accumulate;
 pub mod numpy;

@@ -1,6 +1,7 @@
 //! The ground truth a detector is scored against, and the devkit's filters on both sides: a
 //! box farther from the ego than its class's range is left out (truth and predictions alike),
-//! and so is a true box with no LiDAR or radar return in it.
+//! so is a true box with no LiDAR or radar return in it, and so is a bicycle or motorcycle
+//! whose centre stands in an annotated bicycle rack.
 
 use std::collections::BTreeMap;
 
@@ -21,6 +22,17 @@ pub struct TrueBox {
 pub struct SampleTruth {
     pub ego_translation: [f64; 3],
     pub boxes: Vec<TrueBox>,
+    /// The sample's annotated bicycle racks (`static_object.bicycle_rack`): a cycle parked in
+    /// one is not scored.
+    pub bike_racks: Vec<ObjectBox>,
+}
+
+/// The devkit's bike-rack rule: a bicycle or motorcycle whose centre lies in a rack's box.
+fn in_a_bike_rack(detection: &Detection, racks: &[ObjectBox]) -> bool {
+    matches!(detection.detection_name.as_str(), "bicycle" | "motorcycle")
+        && racks
+            .iter()
+            .any(|rack| rack.contains(glam::DVec3::from_array(detection.translation), 0.0, 0.0))
 }
 
 /// Planar distance of a box from the ego, m.
@@ -38,21 +50,21 @@ pub fn filter_boxes(
     BTreeMap<String, Vec<TrueBox>>,
     BTreeMap<String, Vec<Detection>>,
 ) {
-    let within = |detection: &Detection, ego: &[f64; 3]| {
+    let within = |detection: &Detection, sample: &SampleTruth| {
         ranges
             .get(&detection.detection_name)
-            .is_some_and(|&range| ego_distance(detection, ego) < range)
+            .is_some_and(|&range| ego_distance(detection, &sample.ego_translation) < range)
+            && !in_a_bike_rack(detection, &sample.bike_racks)
     };
     let mut kept_truth = BTreeMap::new();
     let mut kept_predictions = BTreeMap::new();
     for (sample, sample_truth) in truth {
-        let ego = &sample_truth.ego_translation;
         kept_truth.insert(
             sample.clone(),
             sample_truth
                 .boxes
                 .iter()
-                .filter(|t| within(&t.detection, ego) && t.num_pts > 0)
+                .filter(|t| within(&t.detection, sample_truth) && t.num_pts > 0)
                 .cloned()
                 .collect(),
         );
@@ -63,7 +75,7 @@ pub fn filter_boxes(
                 .map(Vec::as_slice)
                 .unwrap_or_default()
                 .iter()
-                .filter(|p| within(p, ego))
+                .filter(|p| within(p, sample_truth))
                 .cloned()
                 .collect(),
         );
@@ -119,6 +131,12 @@ pub fn sample_truth(frame: &SensorFrame) -> Result<(String, SampleTruth), String
         SampleTruth {
             ego_translation: frame.global_from_ego.translation.to_array(),
             boxes,
+            bike_racks: frame
+                .boxes
+                .iter()
+                .filter(|object| object.category == "static_object.bicycle_rack")
+                .cloned()
+                .collect(),
         },
     ))
 }

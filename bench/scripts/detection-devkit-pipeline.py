@@ -1,0 +1,167 @@
+#!/usr/bin/env python3
+"""`bevworld eval detector` against the official nuScenes devkit on a whole synthetic set.
+
+Makes a synthetic set, writes a results file of noisy detections (the truth moved, resized,
+turned and re-scored by a seeded generator, some boxes dropped, false ones added), scores it
+with the devkit (its loaders, filters, accumulate, calc_ap, calc_tp and DetectionMetrics: the
+body of DetectionEval.evaluate without the official split, which names nuScenes scenes) and
+with `bevworld eval detector --json`, and prints both and their largest difference:
+
+    python3 bench/scripts/detection-devkit-pipeline.py > bench/results/detection-devkit-pipeline.json
+
+Needs `pip install nuscenes-devkit` and a release build (`BIN`, default target/release/bevworld,
+or the CI cache's).
+"""
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from importlib.metadata import version
+
+import numpy as np
+from pyquaternion import Quaternion
+from nuscenes import NuScenes
+from nuscenes.eval.common.data_classes import EvalBoxes
+from nuscenes.eval.common.loaders import add_center_dist, filter_eval_boxes
+from nuscenes.eval.common.utils import center_distance
+from nuscenes.eval.detection.algo import accumulate, calc_ap, calc_tp
+from nuscenes.eval.detection.config import config_factory
+from nuscenes.eval.detection.constants import TP_METRICS
+from nuscenes.eval.detection.data_classes import (DetectionBox, DetectionMetricDataList,
+                                                   DetectionMetrics)
+from nuscenes.eval.detection.utils import category_to_detection_name
+
+SEED, SCENES, SECONDS = 9800, 2, 6
+
+
+def binary():
+    for candidate in [os.environ.get("BIN"), "target/release/bevworld",
+                      os.path.expanduser("~/.cache/bevworld/target/release/bevworld")]:
+        if candidate and os.path.isfile(candidate):
+            return candidate
+    sys.exit("no bevworld binary: cargo build --release, or set BIN")
+
+
+def truth(nusc):
+    """load_gt, for every sample of the set."""
+    boxes = EvalBoxes()
+    for sample in nusc.sample:
+        rows = []
+        for token in sample["anns"]:
+            ann = nusc.get("sample_annotation", token)
+            name = category_to_detection_name(ann["category_name"])
+            if name is None:
+                continue
+            attrs = ann["attribute_tokens"]
+            attribute = nusc.get("attribute", attrs[0])["name"] if len(attrs) == 1 else ""
+            rows.append(DetectionBox(
+                sample_token=sample["token"], translation=ann["translation"], size=ann["size"],
+                rotation=ann["rotation"], velocity=nusc.box_velocity(token)[:2],
+                num_pts=ann["num_lidar_pts"] + ann["num_radar_pts"], detection_name=name,
+                detection_score=-1.0, attribute_name=attribute))
+        boxes.add_boxes(sample["token"], rows)
+    return boxes
+
+
+def noisy(gt, rng):
+    """Detections a fair detector might make: most boxes found, moved and resized a little."""
+    results = {}
+    for token in gt.sample_tokens:
+        rows = []
+        for box in gt[token]:
+            if rng.random() < 0.15:
+                continue
+            yaw = Quaternion(box.rotation).yaw_pitch_roll[0] + rng.normal(0.0, 0.3)
+            rotation = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+            velocity = [0.0 if math.isnan(v) else v + rng.normal(0.0, 0.5) for v in box.velocity]
+            rows.append({
+                "sample_token": token,
+                "translation": [box.translation[0] + rng.normal(0.0, 0.6),
+                                box.translation[1] + rng.normal(0.0, 0.6), box.translation[2]],
+                "size": [s * float(np.exp(rng.normal(0.0, 0.1))) for s in box.size],
+                "rotation": rotation, "velocity": velocity,
+                "detection_name": box.detection_name,
+                "detection_score": float(rng.uniform(0.05, 1.0)),
+                "attribute_name": box.attribute_name if rng.random() < 0.8 else
+                ("vehicle.parked" if box.attribute_name == "vehicle.moving" else "vehicle.moving"),
+            })
+        for _ in range(int(rng.integers(0, 4))):
+            rows.append({
+                "sample_token": token,
+                "translation": [float(rng.uniform(-40, 40)), float(rng.uniform(-40, 40)), 0.8],
+                "size": [1.9, 4.5, 1.6], "rotation": [1.0, 0.0, 0.0, 0.0], "velocity": [0.0, 0.0],
+                "detection_name": "car", "detection_score": float(rng.uniform(0.0, 0.5)),
+                "attribute_name": "vehicle.parked",
+            })
+        results[token] = rows
+    return results
+
+
+def devkit_scores(nusc, gt, results):
+    """DetectionEval.evaluate's body on these boxes."""
+    cfg = config_factory("detection_cvpr_2019")
+    pred = EvalBoxes.deserialize(results, DetectionBox)
+    gt, pred = add_center_dist(nusc, gt), add_center_dist(nusc, pred)
+    gt = filter_eval_boxes(nusc, gt, cfg.class_range)
+    pred = filter_eval_boxes(nusc, pred, cfg.class_range)
+    data = DetectionMetricDataList()
+    for name in cfg.class_names:
+        for th in cfg.dist_ths:
+            data.set(name, th, accumulate(gt, pred, name, center_distance, th))
+    metrics = DetectionMetrics(cfg)
+    for name in cfg.class_names:
+        for th in cfg.dist_ths:
+            metrics.add_label_ap(name, th, calc_ap(data[(name, th)], cfg.min_recall, cfg.min_precision))
+        for metric in TP_METRICS:
+            if name == "traffic_cone" and metric in ["attr_err", "vel_err", "orient_err"]:
+                tp = np.nan
+            elif name == "barrier" and metric in ["attr_err", "vel_err"]:
+                tp = np.nan
+            else:
+                tp = calc_tp(data[(name, cfg.dist_th_tp)], cfg.min_recall, metric)
+            metrics.add_label_tp(name, metric, tp)
+    return metrics.serialize()
+
+
+def main():
+    bin_ = binary()
+    with tempfile.TemporaryDirectory() as work:
+        data = os.path.join(work, "synth")
+        subprocess.run([bin_, "synth", "--out", data, "--seed", str(SEED), "--scenes", str(SCENES),
+                        "--seconds", str(SECONDS), "--camera-size", "64x36"],
+                       check=True, capture_output=True)
+        nusc = NuScenes(version="v1.0-synth", dataroot=data, verbose=False)
+        gt = truth(nusc)
+        results = noisy(gt, np.random.default_rng(SEED))
+        path = os.path.join(work, "results_nusc.json")
+        with open(path, "w") as f:
+            json.dump({"meta": {"use_camera": False, "use_lidar": True, "use_radar": False,
+                                "use_map": False, "use_external": False}, "results": results}, f)
+        devkit = devkit_scores(nusc, gt, results)
+        ours = json.loads(subprocess.run([bin_, "eval", "detector", "--data", data, "--results", path,
+                                          "--json"], check=True, capture_output=True, text=True).stdout)
+    official = ours["official"]
+    pairs = [(devkit["mean_ap"], official["mean_ap"]), (devkit["nd_score"], official["nd_score"])]
+    pairs += [(devkit["tp_errors"][m], official["tp_errors"][m]) for m in TP_METRICS]
+    pairs += [(devkit["label_aps"]["car"][th], official["label_aps"]["car"][k])
+              for th, k in [(0.5, "0.5"), (1.0, "1"), (2.0, "2"), (4.0, "4")]]
+    pairs += [(devkit["label_tp_errors"]["car"][m], official["label_tp_errors"]["car"][m])
+              for m in TP_METRICS]
+    print(json.dumps({
+        "devkit": "nuscenes-devkit " + version("nuscenes-devkit"),
+        "set": {"seed": SEED, "scenes": SCENES, "seconds": SECONDS, "samples": ours["samples"]},
+        "devkit_scores": {"mean_ap": devkit["mean_ap"], "nd_score": devkit["nd_score"],
+                          "tp_errors": devkit["tp_errors"],
+                          "car_aps": {str(k): v for k, v in devkit["label_aps"]["car"].items()},
+                          "car_tp_errors": devkit["label_tp_errors"]["car"]},
+        "our_scores": {"mean_ap": official["mean_ap"], "nd_score": official["nd_score"],
+                       "tp_errors": official["tp_errors"], "car_aps": official["label_aps"]["car"],
+                       "car_tp_errors": official["label_tp_errors"]["car"]},
+        "largest_difference": max(abs(a - b) for a, b in pairs),
+    }, indent=1))
+
+
+if __name__ == "__main__":
+    main()
