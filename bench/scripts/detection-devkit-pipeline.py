@@ -33,7 +33,11 @@ from nuscenes.eval.detection.data_classes import (DetectionBox, DetectionMetricD
                                                    DetectionMetrics)
 from nuscenes.eval.detection.utils import category_to_detection_name
 
-SEED, SCENES, SECONDS = 9800, 2, 6
+SEED, SCENES, SECONDS, PEDESTRIANS, CYCLISTS = 9800, 2, 6, 20, 6
+# A wrong attribute is the other of its class's pair.
+OTHER = {"vehicle.moving": "vehicle.parked", "vehicle.parked": "vehicle.moving",
+         "pedestrian.moving": "pedestrian.standing", "pedestrian.standing": "pedestrian.moving",
+         "cycle.with_rider": "cycle.without_rider", "": ""}
 
 
 def binary():
@@ -85,7 +89,7 @@ def noisy(gt, rng):
                 "detection_name": box.detection_name,
                 "detection_score": float(rng.uniform(0.05, 1.0)),
                 "attribute_name": box.attribute_name if rng.random() < 0.8 else
-                ("vehicle.parked" if box.attribute_name == "vehicle.moving" else "vehicle.moving"),
+                OTHER[box.attribute_name],
             })
         for _ in range(int(rng.integers(0, 4))):
             rows.append({
@@ -130,7 +134,8 @@ def main():
     with tempfile.TemporaryDirectory() as work:
         data = os.path.join(work, "synth")
         subprocess.run([bin_, "synth", "--out", data, "--seed", str(SEED), "--scenes", str(SCENES),
-                        "--seconds", str(SECONDS), "--camera-size", "64x36"],
+                        "--seconds", str(SECONDS), "--camera-size", "64x36",
+                        "--pedestrians", str(PEDESTRIANS), "--cyclists", str(CYCLISTS)],
                        check=True, capture_output=True)
         nusc = NuScenes(version="v1.0-synth", dataroot=data, verbose=False)
         gt = truth(nusc)
@@ -145,13 +150,18 @@ def main():
     official = ours["official"]
     pairs = [(devkit["mean_ap"], official["mean_ap"]), (devkit["nd_score"], official["nd_score"])]
     pairs += [(devkit["tp_errors"][m], official["tp_errors"][m]) for m in TP_METRICS]
-    pairs += [(devkit["label_aps"]["car"][th], official["label_aps"]["car"][k])
-              for th, k in [(0.5, "0.5"), (1.0, "1"), (2.0, "2"), (4.0, "4")]]
-    pairs += [(devkit["label_tp_errors"]["car"][m], official["label_tp_errors"]["car"][m])
-              for m in TP_METRICS]
+    for name in ["car", "pedestrian", "bicycle"]:
+        pairs += [(devkit["label_aps"][name][th], official["label_aps"][name][k])
+                  for th, k in [(0.5, "0.5"), (1.0, "1"), (2.0, "2"), (4.0, "4")]]
+        pairs += [(devkit["label_tp_errors"][name][m], official["label_tp_errors"][name][m])
+                  for m in TP_METRICS]
     print(json.dumps({
         "devkit": "nuscenes-devkit " + version("nuscenes-devkit"),
-        "set": {"seed": SEED, "scenes": SCENES, "seconds": SECONDS, "samples": ours["samples"]},
+        "set": {"seed": SEED, "scenes": SCENES, "seconds": SECONDS, "pedestrians": PEDESTRIANS,
+                "cyclists": CYCLISTS, "samples": ours["samples"]},
+        "classes": {name: {"devkit_map": float(np.mean(list(devkit["label_aps"][name].values()))),
+                           "our_map": official["mean_dist_aps"][name]}
+                    for name in ["car", "pedestrian", "bicycle"]},
         "devkit_scores": {"mean_ap": devkit["mean_ap"], "nd_score": devkit["nd_score"],
                           "tp_errors": devkit["tp_errors"],
                           "car_aps": {str(k): v for k, v in devkit["label_aps"]["car"].items()},

@@ -15,7 +15,7 @@ if ! [ -x "$PYTHON" ] || ! "$PYTHON" -c "import nuscenes" 2>/dev/null; then
 fi
 DATA=out/synth-devkit
 rm -rf "$DATA"
-cargo run --release -- synth --out "$DATA" --seed 0 --scenes 2 --seconds 4
+cargo run --release -- synth --out "$DATA" --seed 0 --scenes 2 --seconds 4 --pedestrians 20 --cyclists 6
 "$PYTHON" bench/devkit/check_dataset.py "$DATA" v1.0-synth bench/results | tee bench/results/nuscenes-devkit.json
 python3 - <<'PY'
 import json
@@ -23,7 +23,8 @@ r = json.load(open("bench/results/nuscenes-devkit.json"))
 rows = "\n".join(f"| `{t}` | {n} |" for t, n in r["tables"].items())
 open("bench/results/nuscenes-devkit.md", "w").write(
     "# The synthetic world in the official nuScenes devkit\n\n"
-    "Reproduce: `bench/scripts/nuscenes-devkit.sh` (two scenes of 4 s, seeds 0 and 1).\n\n"
+    "Reproduce: `bench/scripts/nuscenes-devkit.sh` (two scenes of 4 s, seeds 0 and 1, with 20 "
+    "pedestrians and 6 cyclists each).\n\n"
     f"{r['devkit']} loads the set (`NuScenes(version='v1.0-synth', dataroot=...)`), builds its "
     "reverse indices and renders it. Its `points_in_box` finds in "
     f"{r['num_lidar_pts_equal_to_points_in_box']} of {r['boxes']} boxes exactly the "

@@ -40,6 +40,13 @@ pub struct SynthArgs {
     /// Moving vehicles per scene (at most 200).
     #[arg(long, default_value_t = 14)]
     pub agents: usize,
+    /// Pedestrians per scene, on the sidewalks (at most 200; 0 leaves a seed's scenes as they
+    /// were before pedestrians existed).
+    #[arg(long, default_value_t = 0)]
+    pub pedestrians: usize,
+    /// Cyclists per scene, on the roads (at most 200).
+    #[arg(long, default_value_t = 0)]
+    pub cyclists: usize,
     /// Write JPEG at this quality (1 to 100) instead of lossless PNG.
     #[arg(long)]
     pub jpeg: Option<u8>,
@@ -110,6 +117,8 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
         camera_height,
         lidar,
         agents: args.agents,
+        pedestrians: args.pedestrians,
+        cyclists: args.cyclists,
         image_encoding: args
             .jpeg
             .map_or(ImageEncoding::Png, |quality| ImageEncoding::Jpeg {
@@ -139,7 +148,7 @@ pub fn run(args: &SynthArgs) -> Result<ExitCode> {
     let problems = config.problems();
     if !problems.is_empty() {
         return Err(refuse(format!(
-            "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --jpeg, --branch-at, --manoeuvres)",
+            "{} (flags: --scenes, --seed, --seconds, --camera-size, --agents, --pedestrians, --cyclists, --jpeg, --branch-at, --manoeuvres)",
             problems.join("; ")
         )));
     }

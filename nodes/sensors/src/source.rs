@@ -78,6 +78,11 @@ pub struct GenerateParams {
     /// Camera image size `WxH`.
     #[serde(default = "default_size")]
     pub camera_size: String,
+    /// Pedestrians and cyclists per scene.
+    #[serde(default)]
+    pub pedestrians: usize,
+    #[serde(default)]
+    pub cyclists: usize,
 }
 
 fn one() -> usize {
@@ -205,6 +210,8 @@ impl DatasetSource {
             seconds: generate.seconds,
             camera_width,
             camera_height,
+            pedestrians: generate.pedestrians,
+            cyclists: generate.cyclists,
             ..Default::default()
         };
         tracing::info!(

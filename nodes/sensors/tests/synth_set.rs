@@ -13,6 +13,8 @@ fn a_synthetic_set_is_made_once_and_a_folder_of_other_scenes_is_refused() {
         seconds: 0.5,
         camera_size: "112x64".into(),
         branch: None,
+        pedestrians: 0,
+        cyclists: 0,
     };
     set.ensure().expect("a missing set is made");
     let left: Vec<_> = std::fs::read_dir(dir.path())
@@ -81,6 +83,8 @@ fn a_branched_set_holds_one_scene_per_manoeuvre_and_a_plain_set_is_not_taken_for
             at_s: 0.5,
             manoeuvres: vec![Manoeuvre::Left, Manoeuvre::Right],
         }),
+        pedestrians: 0,
+        cyclists: 0,
     };
     branched.ensure().expect("a missing branched set is made");
     let dataset =

@@ -829,3 +829,97 @@ fn visibility_grades_what_the_rig_sees_of_a_vehicle() {
     assert!(visible_share(&hidden, eye, &car, 7) < 0.05);
     assert_eq!(visibility_token(&hidden, eye, &car, 7), "1");
 }
+
+/// Pedestrians and cyclists: annotated under their own categories and attributes, listed as
+/// instances of those categories, hit by the LiDAR, and seen by the cameras.
+#[test]
+fn pedestrians_and_cyclists_are_annotated_hit_and_seen() {
+    use bevworld_sensors::nuscenes::tables::Instance;
+    let dir = tempfile::tempdir().unwrap();
+    let config = SynthConfig {
+        seconds: 2.0,
+        pedestrians: 30,
+        cyclists: 10,
+        ..tiny(12)
+    };
+    generate(dir.path(), &config, |_, _| {}).unwrap();
+    let tables = dir.path().join(VERSION);
+    let (_, annotations) = read_table::<SampleAnnotation>(&tables, "sample_annotation").unwrap();
+    let (_, instances) = read_table::<Instance>(&tables, "instance").unwrap();
+    let category_of: BTreeMap<&str, &str> = instances
+        .iter()
+        .map(|i| (i.token.as_str(), i.category_token.as_str()))
+        .collect();
+    let token = bevworld_sensors::synth::schema::category_token;
+    let attribute = bevworld_sensors::synth::schema::attribute_token;
+    let mut seen: BTreeMap<&str, (usize, i64)> = BTreeMap::new();
+    for annotation in &annotations {
+        let category = category_of[annotation.instance_token.as_str()];
+        let (name, allowed): (&str, &[&str]) = if category == token("human.pedestrian.adult") {
+            ("pedestrian", &["pedestrian.moving", "pedestrian.standing"])
+        } else if category == token("vehicle.bicycle") {
+            ("bicycle", &["cycle.with_rider"])
+        } else {
+            assert_eq!(category, token("vehicle.car"));
+            ("car", &["vehicle.moving", "vehicle.parked"])
+        };
+        assert!(
+            allowed
+                .iter()
+                .any(|a| annotation.attribute_tokens == [attribute(a)]),
+            "{name}: {:?}",
+            annotation.attribute_tokens
+        );
+        let entry = seen.entry(name).or_default();
+        entry.0 += 1;
+        entry.1 = entry.1.max(annotation.num_lidar_pts);
+    }
+    for name in ["pedestrian", "bicycle", "car"] {
+        let (count, most_points) = seen.get(name).copied().unwrap_or_default();
+        assert!(count > 0 && most_points > 0, "{name}: {seen:?}");
+    }
+    // A pedestrian box is person-sized, a cyclist's bicycle-long.
+    for annotation in &annotations {
+        let category = category_of[annotation.instance_token.as_str()];
+        if category == token("human.pedestrian.adult") {
+            assert!(
+                annotation.size[2] > 1.5 && annotation.size[1] < 0.9,
+                "{:?}",
+                annotation.size
+            );
+        } else if category == token("vehicle.bicycle") {
+            assert!(
+                annotation.size[1] > 1.6 && annotation.size[0] < 0.9,
+                "{:?}",
+                annotation.size
+            );
+        }
+    }
+    // People come from streams of their own: the cars are where they were without them.
+    let plain = tempfile::tempdir().unwrap();
+    generate(
+        plain.path(),
+        &SynthConfig {
+            seconds: 2.0,
+            ..tiny(12)
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    let (_, without) =
+        read_table::<SampleAnnotation>(&plain.path().join(VERSION), "sample_annotation").unwrap();
+    let car = token("vehicle.car");
+    let cars = |rows: &[SampleAnnotation]| -> Vec<(String, [f64; 3], [f64; 3])> {
+        rows.iter()
+            .filter(|a| {
+                category_of
+                    .get(a.instance_token.as_str())
+                    .is_some_and(|c| *c == car)
+            })
+            .map(|a| (a.instance_token.clone(), a.translation, a.size))
+            .collect()
+    };
+    let with_people: Vec<_> = cars(&annotations);
+    assert!(!with_people.is_empty());
+    assert_eq!(with_people, cars(&without));
+}

@@ -132,9 +132,18 @@ pub fn boxes_by_sample(dir: &Path, samples: &[Sample]) -> Result<HashMap<String,
             (None, Some(n)) => (Some((annotation, time)), Some(n)),
             (None, None) => (None, None),
         };
+        // As the devkit has it: each time in seconds before the difference (which rounds the
+        // interval to the 0.24 µs an epoch time holds), and twice the gap for a centred one.
+        let centred = first.is_some_and(|(a, _)| a.token != annotation.token)
+            && last.is_some_and(|(b, _)| b.token != annotation.token);
+        let largest_gap = if centred {
+            2.0 * MAX_VELOCITY_GAP_S
+        } else {
+            MAX_VELOCITY_GAP_S
+        };
         let velocity = first.zip(last).and_then(|((a, ta), (b, tb))| {
-            let dt = (tb - ta) as f64 * 1e-6;
-            (dt > 0.0 && dt <= MAX_VELOCITY_GAP_S).then(|| {
+            let dt = tb as f64 * 1e-6 - ta as f64 * 1e-6;
+            (dt > 0.0 && dt <= largest_gap).then(|| {
                 [
                     (b.translation[0] - a.translation[0]) / dt,
                     (b.translation[1] - a.translation[1]) / dt,

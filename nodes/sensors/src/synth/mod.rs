@@ -7,6 +7,7 @@
 
 pub mod geometry;
 pub mod in_place;
+pub mod people;
 pub mod render;
 pub mod rig;
 pub mod rng;

@@ -4,6 +4,7 @@ use glam::{DQuat, DVec2, DVec3};
 
 use bevworld_types::{Manoeuvre, Pose};
 
+use super::people::{Person, person_solids, spawn_cyclists, spawn_pedestrians};
 use super::render::Snapshot;
 use super::rng::Rng;
 use super::traffic::{Agent, BicycleState, EgoControl, EgoScript, WHEELBASE, spawn_agents};
@@ -18,6 +19,8 @@ pub struct SceneWorld {
     pub seed: u64,
     pub city: City,
     pub agents: Vec<Agent>,
+    /// Pedestrians, then cyclists (`with_people`); none by default.
+    pub people: Vec<Person>,
     pub script: EgoScript,
     /// Ego state at each tick.
     pub states: Vec<BicycleState>,
@@ -48,12 +51,32 @@ impl SceneWorld {
             seed,
             city,
             agents,
+            people: Vec::new(),
             script,
             states,
             controls,
             t0_us,
             ticks,
         }
+    }
+
+    /// The same scene with pedestrians on the sidewalks and cyclists on the roads around the
+    /// ego's start, each drawn from a stream of its own: the rest of the scene is unchanged.
+    pub fn with_people(mut self, pedestrians: usize, cyclists: usize) -> Self {
+        let roads = self.city.roads;
+        let start = self.script.path.pose(0.0).0;
+        let around = (
+            (start.x / roads.pitch).round() as i64,
+            (start.y / roads.pitch).round() as i64,
+        );
+        self.people = spawn_pedestrians(&mut Rng::fork(self.seed, 4), &roads, around, pedestrians);
+        self.people.extend(spawn_cyclists(
+            &mut Rng::fork(self.seed, 5),
+            &roads,
+            around,
+            cyclists,
+        ));
+        self
     }
 
     /// The same scene, but from the tick at `at_s` seconds on the ego drives `manoeuvre`
@@ -133,6 +156,17 @@ impl SceneWorld {
         vehicles
     }
 
+    /// The people at `t_us`, with their instance numbers (after every vehicle's).
+    pub fn people_at(&self, t_us: i64) -> Vec<(u32, &Person, VehicleBody)> {
+        let t = (t_us - self.t0_us) as f64 * 1e-6;
+        let offset = (self.agents.len() + self.city.parked.len()) as u32 + 1;
+        self.people
+            .iter()
+            .enumerate()
+            .map(|(i, person)| (offset + i as u32, person, person.body_at(t)))
+            .collect()
+    }
+
     /// Everything at one instant, ready to ray cast.
     pub fn snapshot(&self, t_us: i64) -> Snapshot {
         let mut solids: Vec<Solid> = self.city.solids.clone();
@@ -143,6 +177,12 @@ impl SceneWorld {
                 continue;
             }
             solids.extend(body.solids(instance));
+        }
+        for (instance, person, body) in self.people_at(t_us) {
+            if (body.center - ego).length() < 3.0 {
+                continue;
+            }
+            solids.extend(person_solids(person.kind, &body, instance));
         }
         Snapshot::new(self.city.roads, solids)
     }

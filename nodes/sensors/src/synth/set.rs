@@ -22,6 +22,15 @@ pub struct SynthSet {
     pub camera_size: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub branch: Option<Branch>,
+    /// Pedestrians and cyclists per scene (`bevworld synth --pedestrians --cyclists`).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub pedestrians: usize,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub cyclists: usize,
+}
+
+fn is_zero(count: &usize) -> bool {
+    *count == 0
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -54,6 +63,8 @@ impl SynthSet {
             camera_width,
             camera_height,
             branch: self.branch.clone(),
+            pedestrians: self.pedestrians,
+            cyclists: self.cyclists,
             ..Default::default()
         };
         if !self.dir.exists() {

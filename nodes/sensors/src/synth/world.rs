@@ -77,11 +77,19 @@ impl RoadSpec {
 pub enum Material {
     Asphalt,
     Kerb,
-    Building { hue: u8 },
+    Building {
+        hue: u8,
+    },
     Pole,
     Trunk,
     Foliage,
-    Vehicle { colour: [u8; 3] },
+    Vehicle {
+        colour: [u8; 3],
+    },
+    /// Clothes and skin: matte, a weak LiDAR return.
+    Person {
+        colour: [u8; 3],
+    },
 }
 
 /// A shape with its material and, for agents, an instance id.
@@ -426,6 +434,14 @@ pub fn solid_albedo(material: Material, p: DVec3, normal: DVec3) -> ([f64; 3], f
             let n = value_noise(p.x * 4.0 + p.z * 3.0, p.y * 4.0 - p.z * 2.0, 41);
             ([0.12 + 0.1 * n, 0.3 + 0.2 * n, 0.1 + 0.06 * n], 0.25)
         }
+        Material::Person { colour } => (
+            [
+                f64::from(colour[0]) / 255.0,
+                f64::from(colour[1]) / 255.0,
+                f64::from(colour[2]) / 255.0,
+            ],
+            0.3,
+        ),
         Material::Vehicle { colour } => {
             let c = [
                 f64::from(colour[0]) / 255.0,

@@ -42,6 +42,10 @@ pub struct SynthConfig {
     pub camera_height: u32,
     pub lidar: LidarSpec,
     pub agents: usize,
+    /// Pedestrians on the sidewalks and cyclists on the roads (`people.rs`); none by default,
+    /// which leaves every scene as it was before they existed.
+    pub pedestrians: usize,
+    pub cyclists: usize,
     pub image_encoding: ImageEncoding,
     /// Camera far plane, m.
     pub far: f64,
@@ -69,6 +73,8 @@ impl Default for SynthConfig {
             camera_height: 224,
             lidar: LidarSpec::nuscenes_like(0.4),
             agents: 14,
+            pedestrians: 0,
+            cyclists: 0,
             image_encoding: ImageEncoding::Png,
             far: 250.0,
             branch: None,
@@ -117,6 +123,14 @@ impl SynthConfig {
                 "agents: {} (accepted: 0 to {MAX_AGENTS})",
                 self.agents
             ));
+        }
+        for (name, count) in [
+            ("pedestrians", self.pedestrians),
+            ("cyclists", self.cyclists),
+        ] {
+            if count > MAX_AGENTS {
+                problems.push(format!("{name}: {count} (accepted: 0 to {MAX_AGENTS})"));
+            }
         }
         if let ImageEncoding::Jpeg { quality } = self.image_encoding
             && !(1..=100).contains(&quality)
@@ -309,8 +323,9 @@ struct Writer<'a> {
     tables: Tables,
     /// The six cameras' channels, then `LIDAR_TOP`: the sensor table's order.
     channels: Vec<String>,
-    /// Each instance's annotations, in time order, to link as prev/next at the end.
-    annotation_chain: BTreeMap<String, Vec<usize>>,
+    /// Each instance's category and annotations, in time order, to link as prev/next and
+    /// list as instances at the end.
+    annotation_chain: BTreeMap<String, (&'static str, Vec<usize>)>,
     summary: SynthSummary,
 }
 
@@ -365,16 +380,14 @@ impl<'a> Writer<'a> {
         let config = self.config;
         // A branch shares the world, the traffic, the LiDAR noise and the drive up to the
         // branch with its scene, but not its tokens, so that the tables keep scenes apart.
+        let world = SceneWorld::new(seed, config.seconds, config.agents)
+            .with_people(config.pedestrians, config.cyclists);
         let (key, name, world) = match branch {
-            None => (
-                seed,
-                scene_name(seed),
-                SceneWorld::new(seed, config.seconds, config.agents),
-            ),
+            None => (seed, scene_name(seed), world),
             Some((at_s, manoeuvre)) => (
                 branch_key(seed, manoeuvre),
                 scene_variant_name(seed, Some(manoeuvre)),
-                SceneWorld::new(seed, config.seconds, config.agents).branched(at_s, manoeuvre),
+                world.branched(at_s, manoeuvre),
             ),
         };
         let log_token = token(key, "log", 0);
@@ -557,11 +570,33 @@ impl<'a> Writer<'a> {
         Ok(())
     }
 
-    /// The keyframe's annotations: every vehicle between 3 and 60 m of the ego, its box, its
-    /// motion, its LiDAR count and its visibility.
+    /// The keyframe's annotations: every road user between 3 and 60 m of the ego, its box, its
+    /// category and attribute, its LiDAR count and its visibility.
     fn annotate(&mut self, scene: &SceneInProgress, sample_token: &str, sweep: &Sweep) {
         let ego = scene.world.ego_position(sweep.time_us);
-        for (instance, body, moving) in scene.world.vehicles_at(sweep.time_us) {
+        let vehicles =
+            scene
+                .world
+                .vehicles_at(sweep.time_us)
+                .into_iter()
+                .map(|(instance, body, moving)| {
+                    let attribute = if moving {
+                        "vehicle.moving"
+                    } else {
+                        "vehicle.parked"
+                    };
+                    (instance, body, "vehicle.car", attribute)
+                });
+        let people =
+            scene
+                .world
+                .people_at(sweep.time_us)
+                .into_iter()
+                .map(|(instance, person, body)| {
+                    (instance, body, person.category(), person.attribute())
+                });
+        let road_users: Vec<_> = vehicles.chain(people).collect();
+        for (instance, body, category, attribute) in road_users {
             if (body.center - ego).length() > 60.0 || (body.center - ego).length() < 3.0 {
                 continue;
             }
@@ -600,11 +635,7 @@ impl<'a> Writer<'a> {
                 sample_token: sample_token.to_string(),
                 instance_token: instance_token.clone(),
                 visibility_token: visibility.into(),
-                attribute_tokens: vec![super::schema::attribute_token(if moving {
-                    "vehicle.moving"
-                } else {
-                    "vehicle.parked"
-                })],
+                attribute_tokens: vec![super::schema::attribute_token(attribute)],
                 translation: [body.center.x, body.center.y, body.size.z * 0.5],
                 size,
                 rotation: {
@@ -618,7 +649,8 @@ impl<'a> Writer<'a> {
             });
             self.annotation_chain
                 .entry(instance_token)
-                .or_default()
+                .or_insert_with(|| (category, Vec::new()))
+                .1
                 .push(index);
         }
     }
@@ -626,9 +658,9 @@ impl<'a> Writer<'a> {
     /// Links each instance's annotations, lists the instances, and writes every table and the
     /// map's mask.
     fn finish(mut self, started: Instant) -> Result<SynthSummary> {
-        let category = super::schema::category_token("vehicle.car");
         let tables = &mut self.tables;
-        for (instance_token, indices) in &self.annotation_chain {
+        for (instance_token, (category, indices)) in &self.annotation_chain {
+            let category = super::schema::category_token(category);
             for w in indices.windows(2) {
                 let next = tables.sample_annotation[w[1]].token.clone();
                 let prev = tables.sample_annotation[w[0]].token.clone();
