@@ -25,13 +25,13 @@ from pyquaternion import Quaternion
 from nuscenes import NuScenes
 from nuscenes.eval.common.data_classes import EvalBoxes
 from nuscenes.eval.common.loaders import add_center_dist, filter_eval_boxes
-from nuscenes.eval.common.utils import center_distance
-from nuscenes.eval.detection.algo import accumulate, calc_ap, calc_tp
 from nuscenes.eval.detection.config import config_factory
 from nuscenes.eval.detection.constants import TP_METRICS
-from nuscenes.eval.detection.data_classes import (DetectionBox, DetectionMetricDataList,
-                                                   DetectionMetrics)
+from nuscenes.eval.detection.data_classes import DetectionBox
 from nuscenes.eval.detection.utils import category_to_detection_name
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "devkit"))
+from detection_metrics import score  # noqa: E402
 
 SEED, SCENES, SECONDS, PEDESTRIANS, CYCLISTS = 9800, 2, 6, 20, 6
 # A wrong attribute is the other of its class's pair.
@@ -104,29 +104,13 @@ def noisy(gt, rng):
 
 
 def devkit_scores(nusc, gt, results):
-    """DetectionEval.evaluate's body on these boxes."""
+    """DetectionEval.evaluate on these boxes: the devkit's loaders' filters, then its scoring."""
     cfg = config_factory("detection_cvpr_2019")
     pred = EvalBoxes.deserialize(results, DetectionBox)
     gt, pred = add_center_dist(nusc, gt), add_center_dist(nusc, pred)
     gt = filter_eval_boxes(nusc, gt, cfg.class_range)
     pred = filter_eval_boxes(nusc, pred, cfg.class_range)
-    data = DetectionMetricDataList()
-    for name in cfg.class_names:
-        for th in cfg.dist_ths:
-            data.set(name, th, accumulate(gt, pred, name, center_distance, th))
-    metrics = DetectionMetrics(cfg)
-    for name in cfg.class_names:
-        for th in cfg.dist_ths:
-            metrics.add_label_ap(name, th, calc_ap(data[(name, th)], cfg.min_recall, cfg.min_precision))
-        for metric in TP_METRICS:
-            if name == "traffic_cone" and metric in ["attr_err", "vel_err", "orient_err"]:
-                tp = np.nan
-            elif name == "barrier" and metric in ["attr_err", "vel_err"]:
-                tp = np.nan
-            else:
-                tp = calc_tp(data[(name, cfg.dist_th_tp)], cfg.min_recall, metric)
-            metrics.add_label_tp(name, metric, tp)
-    return metrics.serialize()
+    return score(gt, pred, cfg)
 
 
 def main():

@@ -20,6 +20,8 @@ pub fn ensure(cache: &CacheConfig, tokenizer_model: &Path, tokenizer_weights: &P
         .synth
         .ensure()
         .with_context(|| format!("making the synthetic set {}", cache.synth.dir.display()))?;
+    // The bundle the export graph's encoder runs, whose tokenizer files the caches swap in.
+    let mut bundle = None;
     for (sweeps, index) in [(true, SWEEPS_INDEX), (false, KEYFRAMES_INDEX)] {
         if cache.latents.join(index).is_file() {
             continue;
@@ -30,7 +32,13 @@ pub fn ensure(cache: &CacheConfig, tokenizer_model: &Path, tokenizer_weights: &P
             if sweeps { "every sweep" } else { "keyframes" },
             cache.latents.join(index).display()
         );
-        let bundle = graph_run::bundle_name(Path::new(EXPORT_GRAPH), &contracts::LATENT_CACHE)?;
+        let bundle = match &bundle {
+            Some(name) => name,
+            None => bundle.insert(graph_run::bundle_name(
+                Path::new(EXPORT_GRAPH),
+                &contracts::LATENT_CACHE,
+            )?),
+        };
         let set = [
             format!("data={}", cache.synth.dir.display()),
             format!("sweeps={sweeps}"),
