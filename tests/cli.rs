@@ -676,6 +676,8 @@ fn synth_refuses_jpeg_quality_seed_wrap_and_agent_floods() {
             "wrap round to 0",
         ),
         (vec!["--agents", "100000"], "agents: 100000"),
+        (vec!["--pedestrians", "201"], "pedestrians: 201"),
+        (vec!["--cyclists", "5000"], "cyclists: 5000"),
     ] {
         let mut args = vec!["synth", "--out", out_arg];
         args.extend(flags.iter().copied());
