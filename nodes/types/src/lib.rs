@@ -12,7 +12,9 @@
 
 pub mod action;
 pub mod bev;
+pub mod bev_warp;
 pub mod camera;
+pub mod detected_agents;
 pub mod detection;
 pub mod digest;
 pub mod ego_body;
@@ -32,7 +34,9 @@ pub mod splitmix;
 
 pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
+pub use bev_warp::{LatentGrid, PlanarMotion, warp_latent};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
+pub use detected_agents::{DetectedAgent, FrameDetections, TrajectoryMode};
 pub use detection::{Detection, DetectionResults, SubmissionMeta, detection_name_of};
 pub use digest::{bytes_digest, file_digest};
 pub use ego_body::EgoBody;
