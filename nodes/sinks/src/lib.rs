@@ -4,6 +4,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod export;
+pub mod export_index;
 pub mod forecast_sink;
 pub mod npy;
 pub mod ply;

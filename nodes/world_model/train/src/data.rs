@@ -12,10 +12,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use bevworld_sinks::npy::read_npy_f32;
+use bevworld_sinks::export_index::{ExportIndexError, read_export_index};
 use bevworld_types::{EgoAction, LatentStats, Pose};
-use glam::{DMat4, DVec4};
-use serde::Deserialize;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
@@ -51,6 +49,15 @@ pub enum DataError {
     },
     #[error("{path}: no frames")]
     Empty { path: PathBuf },
+}
+
+impl From<ExportIndexError> for DataError {
+    fn from(error: ExportIndexError) -> Self {
+        match error {
+            ExportIndexError::Io { path, message } => DataError::Io { path, message },
+            ExportIndexError::NonFinite { path, count } => DataError::NonFinite { path, count },
+        }
+    }
 }
 
 /// One frame of a sequence.
@@ -162,23 +169,6 @@ impl LatentSequences {
     }
 }
 
-#[derive(Deserialize)]
-struct IndexFile {
-    frames: Vec<IndexEntry>,
-}
-
-#[derive(Deserialize)]
-struct IndexEntry {
-    frame_token: String,
-    scene: String,
-    timestamp_us: i64,
-    global_from_ego: [[f64; 4]; 4],
-    file: String,
-    shape: Vec<usize>,
-    model: String,
-    weights_hash: String,
-}
-
 /// Reads the frames `dir/index` lists and splits them into gap-free sequences.
 pub fn load_sequences(
     dir: &Path,
@@ -186,19 +176,12 @@ pub fn load_sequences(
     expected: &Expected,
 ) -> Result<LatentSequences, DataError> {
     let index_path = dir.join(index);
-    let io = |path: &Path, message: String| DataError::Io {
-        path: path.to_path_buf(),
-        message,
-    };
-    let text = std::fs::read_to_string(&index_path)
-        .map_err(|e| io(&index_path, format!("cannot read the cache's index: {e}")))?;
-    let file: IndexFile = serde_json::from_str(&text)
-        .map_err(|e| io(&index_path, format!("not an export index: {e}")))?;
-    if file.frames.is_empty() {
+    let frames = read_export_index(dir, index).map_err(DataError::from)?;
+    if frames.is_empty() {
         return Err(DataError::Empty { path: index_path });
     }
     let mut scenes: BTreeMap<String, Vec<LatentFrame>> = BTreeMap::new();
-    for entry in file.frames {
+    for entry in frames {
         let path = dir.join(&entry.file);
         if entry.model != expected.model || entry.weights_hash != expected.weights_hash {
             return Err(DataError::OtherWeights {
@@ -218,31 +201,13 @@ pub fn load_sequences(
                 expected: expected.shape,
             });
         }
-        let bytes = std::fs::read(&path).map_err(|e| io(&path, e.to_string()))?;
-        let (shape, mut latent) = read_npy_f32(&bytes).map_err(|e| io(&path, e))?;
-        if shape != expected.shape {
-            return Err(DataError::Shape {
-                path,
-                found: shape,
-                expected: expected.shape,
-            });
-        }
-        let count = latent.iter().filter(|v| !v.is_finite()).count();
-        if count > 0 {
-            return Err(DataError::NonFinite { path, count });
-        }
+        let mut latent = entry.read_values(dir).map_err(DataError::from)?;
         expected.stats.standardize(&mut latent);
-        let rows = entry.global_from_ego;
-        let matrix = DMat4::from_cols(
-            DVec4::new(rows[0][0], rows[1][0], rows[2][0], rows[3][0]),
-            DVec4::new(rows[0][1], rows[1][1], rows[2][1], rows[3][1]),
-            DVec4::new(rows[0][2], rows[1][2], rows[2][2], rows[3][2]),
-            DVec4::new(rows[0][3], rows[1][3], rows[2][3], rows[3][3]),
-        );
+        let global_from_ego = entry.global_from_ego();
         scenes.entry(entry.scene).or_default().push(LatentFrame {
             token: entry.frame_token,
             time_us: entry.timestamp_us,
-            global_from_ego: Pose::from_mat4(matrix),
+            global_from_ego,
             latent,
         });
     }
