@@ -51,6 +51,7 @@ impl Task for PillarizeNode {
             scene_name: frame.scene_name.clone(),
             time_of_validity_us: frame.time_of_validity_us,
             global_from_ego: frame.global_from_ego,
+            keyframe: frame.keyframe,
         };
         let s = pillars.stats;
         self.totals.points_in += s.points_in;

@@ -245,6 +245,7 @@ impl Kitti {
             frame_token: format!("{}/{:06}", self.sequence, index),
             scene_name: self.sequence.clone(),
             index_in_scene: index,
+            keyframe: true,
             global_from_ego,
             cameras: Vec::new(),
             lidar: Arc::new(PointCloud {

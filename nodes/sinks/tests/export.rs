@@ -13,6 +13,7 @@ fn features(token: &str, value: f32) -> BevFeatures {
             scene_name: "s".into(),
             time_of_validity_us: 42,
             global_from_ego: Pose::from_translation(DVec3::new(1.0, 2.0, 3.0)),
+            keyframe: true,
         },
         grid: BevGrid {
             x_range: [-2.0, 2.0],

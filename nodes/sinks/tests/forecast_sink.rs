@@ -54,6 +54,7 @@ fn frame(scene: &str, token: &str, index: usize, intensity: f32) -> Arc<SensorFr
         frame_token: token.into(),
         scene_name: scene.into(),
         index_in_scene: index,
+        keyframe: true,
         global_from_ego: Pose::IDENTITY,
         cameras: Vec::new(),
         lidar: Arc::new(cloud(intensity)),
@@ -70,6 +71,7 @@ fn latent(scene: &str, token: &str) -> Arc<BevFeatures> {
             scene_name: scene.into(),
             time_of_validity_us: 0,
             global_from_ego: Pose::IDENTITY,
+            keyframe: true,
         },
         grid: BevGrid {
             x_range: [-1.0, 1.0],

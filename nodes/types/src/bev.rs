@@ -14,6 +14,8 @@ pub struct FrameMeta {
     pub scene_name: String,
     pub time_of_validity_us: i64,
     pub global_from_ego: Pose,
+    /// The sample's own sweep (`SensorFrame::keyframe`).
+    pub keyframe: bool,
 }
 
 /// The grid a BEV feature map covers.

@@ -177,6 +177,8 @@ pub fn virtual_frame(
         frame_token: token,
         scene_name: frame.scene_name.clone(),
         index_in_scene: frame.index_in_scene,
+        // A predicted frame is no dataset's sample.
+        keyframe: false,
         global_from_ego,
         cameras,
         lidar: Arc::new(cloud),

@@ -20,6 +20,10 @@ pub struct SensorFrame {
     pub scene_name: String,
     /// Position of the frame within its scene, from 0.
     pub index_in_scene: usize,
+    /// The sample's own sweep (nuScenes `is_key_frame`), which its annotations and a
+    /// detection submission describe; false for the sweeps between keyframes that share its
+    /// sample token. Every frame of a dataset without keyframes (KITTI) is its own sample.
+    pub keyframe: bool,
     /// The ego pose at the time of validity.
     pub global_from_ego: Pose,
     /// Cameras in `CameraChannel::ALL` order; empty for LiDAR-only datasets.

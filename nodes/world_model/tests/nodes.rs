@@ -46,6 +46,7 @@ fn latent(scene: &str, time_s: f64) -> Arc<BevFeatures> {
             scene_name: scene.into(),
             time_of_validity_us: (time_s * 1e6).round() as i64,
             global_from_ego: Pose::from_translation(DVec3::new(5.0 * time_s, 0.0, 0.0)),
+            keyframe: true,
         },
         grid: BevGrid {
             x_range: [-80.0, 80.0],
@@ -646,6 +647,7 @@ fn frame(scene: &str, time_s: f64) -> Arc<SensorFrame> {
         frame_token: format!("{scene}@{time_s}"),
         scene_name: scene.into(),
         index_in_scene: (time_s * 2.0) as usize,
+        keyframe: true,
         global_from_ego: pose,
         cameras: vec![CameraImage {
             channel: CameraChannel::Front,

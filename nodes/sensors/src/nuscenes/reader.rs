@@ -53,6 +53,7 @@ struct FrameRef {
     action: Option<EgoAction>,
     /// The keyframe's annotated objects (none for a sweep between keyframes).
     boxes: Vec<ObjectBox>,
+    keyframe: bool,
 }
 
 /// The bytes of one frame's files, read ahead of decoding.
@@ -372,6 +373,7 @@ fn scene_frames(
             lidar: lidar.clone(),
             cameras,
             action: None,
+            keyframe: lidar_record.is_key_frame,
             boxes: if lidar_record.is_key_frame {
                 boxes.remove(&lidar_record.sample_token).unwrap_or_default()
             } else {
@@ -539,6 +541,7 @@ impl NuScenes {
             frame_token: frame.lidar.token.clone(),
             scene_name: frame.scene_name.clone(),
             index_in_scene: frame.index_in_scene,
+            keyframe: frame.keyframe,
             global_from_ego: frame.lidar.global_from_ego,
             cameras,
             lidar: Arc::new(cloud),

@@ -353,6 +353,8 @@ impl DiffusionRolloutNode {
                             scene_name: current.meta.scene_name.clone(),
                             time_of_validity_us: time,
                             global_from_ego: poses[k],
+                            // A forecast frame is no dataset's sample.
+                            keyframe: false,
                         },
                         data,
                         ..BevFeatures::clone(current)
