@@ -17,7 +17,7 @@ mod top_down;
 pub use bars::bars_svg;
 pub use curves::{Panel, Series, panels_png};
 pub use scatter::{Labelled, Reference, ScatterPlot, scatter_png};
-pub use top_down::{Cloud, caption, top_down};
+pub use top_down::{Cloud, Polyline, caption, top_down, top_down_with_lines};
 
 use std::path::{Path, PathBuf};
 

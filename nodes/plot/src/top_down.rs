@@ -12,17 +12,36 @@ pub struct Cloud<'a> {
     pub colour: [u8; 3],
 }
 
+/// A line to draw over the clouds, `(x, y)` in metres in the clouds' frame: a box's outline
+/// (closed) or a trajectory (open).
+pub struct Polyline {
+    pub points: Vec<[f32; 2]>,
+    pub colour: [u8; 3],
+    pub closed: bool,
+}
+
 /// A `size × size` RGB image of the clouds over the square `[-half_extent_m, half_extent_m]²`
 /// around the origin, forward up and left to the left, as a driver sees the map. Later clouds
 /// are drawn over earlier ones; points outside the square are left out.
 pub fn top_down(size: u32, half_extent_m: f64, title: &str, clouds: &[Cloud]) -> image::RgbImage {
+    top_down_with_lines(size, half_extent_m, title, clouds, &[])
+}
+
+/// `top_down` with `lines` drawn over the clouds.
+pub fn top_down_with_lines(
+    size: u32,
+    half_extent_m: f64,
+    title: &str,
+    clouds: &[Cloud],
+    lines: &[Polyline],
+) -> image::RgbImage {
     ensure_registered();
     let mut buffer = vec![0u8; (size * size * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buffer, (size, size)).into_drawing_area();
         // Drawing into a buffer of the right size only fails on a font fault; the image is
         // then returned as far as it was drawn.
-        let _ = draw(&root, half_extent_m, title, clouds);
+        let _ = draw(&root, half_extent_m, title, clouds, lines);
         let _ = root.present();
     }
     image::RgbImage::from_raw(size, size, buffer)
@@ -34,6 +53,7 @@ fn draw(
     half: f64,
     title: &str,
     clouds: &[Cloud],
+    lines: &[Polyline],
 ) -> Result<(), Box<dyn std::error::Error>> {
     root.fill(&WHITE)?;
     // Screen x is the ego's left (−y), screen y its forward (x).
@@ -64,6 +84,23 @@ fn draw(
             )?
             .label(cloud.label)
             .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 8, y + 4)], colour.filled()));
+    }
+    for line in lines {
+        let [r, g, b] = line.colour;
+        let mut points: Vec<(f64, f64)> = line
+            .points
+            .iter()
+            .map(|p| (-f64::from(p[1]), f64::from(p[0])))
+            .collect();
+        if line.closed
+            && let Some(&first) = points.first()
+        {
+            points.push(first);
+        }
+        chart.draw_series(std::iter::once(PathElement::new(
+            points,
+            RGBColor(r, g, b).stroke_width(2),
+        )))?;
     }
     chart.draw_series(std::iter::once(Circle::new((0.0, 0.0), 3, BLACK.filled())))?;
     if clouds.len() > 1 {
