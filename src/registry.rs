@@ -13,6 +13,7 @@ pub fn registry() -> Registry {
     bevworld_tokenizer::register(&mut registry);
     bevworld_metrics::register(&mut registry);
     bevworld_world_model::register(&mut registry);
+    bevworld_heads::register(&mut registry);
     registry.models(check_bundle);
     registry.rule(forecast_sink_is_fed_its_method);
     registry

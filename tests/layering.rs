@@ -5,7 +5,7 @@
 //!   other crate of ours;
 //! - the shared network blocks depend only on the types, and the training machinery only on the
 //!   types and the plots: neither knows a model or a dataset;
-//! - a model crate (the tokenizer) depends on the runtime, the types, the blocks and the device,
+//! - a model crate (the tokenizer, the world model, the heads) depends on the runtime, the types, the blocks and the device,
 //!   never on the data (sensors, pillarization), the metrics or the sinks;
 //! - the data families (sensors, pillarization, sinks, metrics) depend on the runtime, the
 //!   types, the blocks and the plots, never on each other or on a model;
@@ -56,6 +56,28 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "bevworld-types",
             "bevworld-blocks",
             "bevworld-device",
+        ],
+    ),
+    (
+        "bevworld-heads",
+        &[
+            "bevworld-graph",
+            "bevworld-types",
+            "bevworld-blocks",
+            "bevworld-device",
+        ],
+    ),
+    (
+        "bevworld-heads-train",
+        &[
+            "bevworld-graph",
+            "bevworld-types",
+            "bevworld-blocks",
+            "bevworld-training",
+            "bevworld-heads",
+            "bevworld-sensors",
+            "bevworld-sinks",
+            "bevworld-metrics",
         ],
     ),
     (
@@ -194,11 +216,14 @@ fn the_rules_forbid_what_the_architecture_forbids() {
     ];
     // A model knows no data and no training; the world model reads latents, never the
     // tokenizer that makes them (the statistics file in the types is their contract).
-    for (model, other) in [
-        ("bevworld-tokenizer", "bevworld-world-model"),
-        ("bevworld-world-model", "bevworld-tokenizer"),
-    ] {
-        for forbidden in data.iter().chain(&["bevworld-training", other]) {
+    let models = [
+        "bevworld-tokenizer",
+        "bevworld-world-model",
+        "bevworld-heads",
+    ];
+    for model in models {
+        let others = models.iter().filter(|other| **other != model);
+        for forbidden in data.iter().chain(&["bevworld-training"]).chain(others) {
             assert!(
                 !rules[model].contains(forbidden),
                 "{model} may use {forbidden}"
@@ -206,10 +231,7 @@ fn the_rules_forbid_what_the_architecture_forbids() {
         }
     }
     for machinery in ["bevworld-graph", "bevworld-blocks", "bevworld-training"] {
-        for forbidden in data
-            .iter()
-            .chain(&["bevworld-tokenizer", "bevworld-world-model"])
-        {
+        for forbidden in data.iter().chain(&models) {
             assert!(
                 !rules[machinery].contains(forbidden),
                 "{machinery} may use {forbidden}"

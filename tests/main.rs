@@ -6,6 +6,7 @@
 mod cli;
 mod common;
 mod control;
+mod detect;
 mod detector_eval;
 mod eval;
 mod forecast;

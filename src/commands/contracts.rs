@@ -60,12 +60,30 @@ pub const LATENT_CACHE: Contract = Contract {
     outputs: &[],
 };
 
+/// The tokenizer's features of the detector's sets (`train detector`): the latent into `out`,
+/// the fused feature into `fused_out`, in one pass.
+pub const DETECTOR_FEATURES: Contract = Contract {
+    command: "train detector",
+    params: &["model", "data", "out", "fused_out"],
+    outputs: &[],
+};
+
+/// The weight-free pillar statistics of the detector's sets (`train detector --input
+/// bev_stats`).
+pub const DETECTOR_BEV_STATS: Contract = Contract {
+    command: "train detector",
+    params: &["data", "out"],
+    outputs: &[],
+};
+
 /// Each command's default graph, with its contract.
 pub const DEFAULT_GRAPHS: &[(&str, Contract)] = &[
     ("configs/graphs/forecast.yaml", EVAL_FORECAST),
     ("configs/graphs/forecast.yaml", EVAL_CONTROL),
     ("configs/graphs/reconstruct.yaml", EVAL_TOKENIZER),
     (super::latent_cache::EXPORT_GRAPH, LATENT_CACHE),
+    (super::detector_train::FEATURES_GRAPH, DETECTOR_FEATURES),
+    (super::detector_train::BEV_STATS_GRAPH, DETECTOR_BEV_STATS),
 ];
 
 /// The contracts of the commands whose default graph is `graph`.

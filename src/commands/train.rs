@@ -20,6 +20,11 @@ pub enum TrainCommand {
     /// synthetic scenes: the paper's three stages, then one on counterfactual branches, in one
     /// run. The latent caches are exported first if missing.
     WorldModel(TrainWorldModelArgs),
+    /// Train the detection and motion heads on BEV features of annotated synthetic scenes (the
+    /// paper's pretraining table): the pillar statistics, the tokenizer's latent or its fused
+    /// feature, one frame or two; scored on the test set with the nuScenes detection metrics
+    /// and minADE/minFDE. The features are exported first if missing.
+    Detector(super::detector_train::TrainDetectorArgs),
 }
 
 #[derive(Args)]
@@ -188,6 +193,7 @@ pub fn run(command: &TrainCommand) -> Result<ExitCode> {
     match command {
         TrainCommand::Tokenizer(args) => tokenizer(args),
         TrainCommand::WorldModel(args) => world_model(args),
+        TrainCommand::Detector(args) => super::detector_train::run(args),
     }
 }
 

@@ -100,7 +100,7 @@ pub struct ForecastSink {
     _claim: Option<FolderClaim>,
 }
 
-fn png(image: &RgbImage, name: &str) -> Result<Vec<u8>, NodeError> {
+pub(crate) fn png(image: &RgbImage, name: &str) -> Result<Vec<u8>, NodeError> {
     let mut bytes = Vec::new();
     image
         .write_to(&mut Cursor::new(&mut bytes), ImageFormat::Png)

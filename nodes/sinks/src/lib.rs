@@ -3,6 +3,7 @@
 // Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
+pub mod detections_sink;
 pub mod export;
 pub mod export_index;
 pub mod forecast_sink;
@@ -18,4 +19,5 @@ pub fn register(registry: &mut bevworld_graph::Registry) {
     ply_sink::register(registry);
     export::register(registry);
     forecast_sink::register(registry);
+    detections_sink::register(registry);
 }

@@ -1,0 +1,127 @@
+//! `configs/models/train-detector-*.yaml`: the detector, the tokenizer whose features it
+//! reads, the three synthetic sets (training, validation tuned on, test touched only for the
+//! reported figure) and where their exported features go, and the optimisation.
+
+use std::path::{Path, PathBuf};
+
+use bevworld_heads::{InputKind, LossWeights};
+use bevworld_sensors::synth::SynthSet;
+use bevworld_training::OptimizerConfig;
+use bevworld_types::ConfigProblem;
+use bevworld_types::problem::{require_count, require_non_negative};
+use serde::{Deserialize, Serialize};
+
+/// A set of annotated scenes and the folder its features are exported into: one subfolder per
+/// input (`bev_stats/`, `latent/`, `feature/`), each with its `index.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeatureSet {
+    pub synth: SynthSet,
+    pub features: PathBuf,
+}
+
+impl FeatureSet {
+    /// Where the features of `input` are.
+    pub fn folder(&self, input: InputKind) -> PathBuf {
+        self.features.join(input.name())
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainDetectorConfig {
+    pub model: PathBuf,
+    pub tokenizer_model: PathBuf,
+    pub tokenizer_weights: PathBuf,
+    pub train: FeatureSet,
+    pub val: FeatureSet,
+    pub test: FeatureSet,
+    pub seed: u64,
+    pub steps: usize,
+    pub batch: usize,
+    pub optimizer: OptimizerConfig,
+    pub loss: LossWeights,
+    /// Validation (on `val`) every this many steps, and at the end.
+    pub validate_every: usize,
+    pub checkpoint_every: usize,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: {message}")]
+    Read { path: String, message: String },
+    #[error("{path}: {}", problems.iter().map(ToString::to_string).collect::<Vec<_>>().join("; "))]
+    Invalid {
+        path: String,
+        problems: Vec<ConfigProblem>,
+    },
+}
+
+impl TrainDetectorConfig {
+    pub fn from_yaml_file(path: &Path) -> Result<Self, ConfigError> {
+        let shown = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: shown.clone(),
+            message: e.to_string(),
+        })?;
+        let config: Self = serde_saphyr::from_str(&text).map_err(|e| ConfigError::Read {
+            path: shown.clone(),
+            message: bevworld_graph::yaml::describe_at(&e, &text),
+        })?;
+        let problems = config.problems();
+        if problems.is_empty() {
+            Ok(config)
+        } else {
+            Err(ConfigError::Invalid {
+                path: shown,
+                problems,
+            })
+        }
+    }
+
+    /// Every inconsistency, naming the field: among them, seed ranges that overlap, since a
+    /// figure on scenes trained or tuned on is not a test figure.
+    pub fn problems(&self) -> Vec<ConfigProblem> {
+        let mut problems = self.optimizer.problems("optimizer");
+        for (field, value) in [
+            ("steps", self.steps),
+            ("batch", self.batch),
+            ("validate_every", self.validate_every),
+            ("checkpoint_every", self.checkpoint_every),
+        ] {
+            require_count(&mut problems, field, value);
+        }
+        for (field, value) in [
+            ("loss.heatmap", self.loss.heatmap),
+            ("loss.boxes", self.loss.boxes),
+            ("loss.motion", self.loss.motion),
+        ] {
+            require_non_negative(&mut problems, field, value);
+        }
+        let sets = [
+            ("train", &self.train),
+            ("val", &self.val),
+            ("test", &self.test),
+        ];
+        for (i, (name, set)) in sets.iter().enumerate() {
+            for (other, other_set) in &sets[..i] {
+                let (a, b) = (set.synth.seeds(), other_set.synth.seeds());
+                if a.start < b.end && b.start < a.end {
+                    problems.push(ConfigProblem::new(
+                        format!("{name}.synth.seed"),
+                        format!(
+                            "seeds {a:?} overlap the {other} set's {b:?}: the three sets must be disjoint"
+                        ),
+                    ));
+                }
+                if set.features == other_set.features {
+                    problems.push(ConfigProblem::new(
+                        format!("{name}.features"),
+                        format!("the same folder as the {other} set's"),
+                    ));
+                }
+            }
+        }
+        problems
+    }
+}
