@@ -109,6 +109,8 @@ fn detect_yaml_writes_every_keyframes_boxes_in_the_submission_format_and_a_pictu
         path(&data),
         "--results".into(),
         path(&out.join("results_nusc.json")),
+        "--trajectories".into(),
+        path(&out.join("trajectories.json")),
         "--json".into(),
     ]);
     assert!(scored.status.success(), "{}", text(&scored));
@@ -116,6 +118,50 @@ fn detect_yaml_writes_every_keyframes_boxes_in_the_submission_format_and_a_pictu
         serde_json::from_slice(&scored.stdout).expect("eval detector --json");
     let nds = scores["present_classes"]["nd_score"].as_f64().expect("NDS");
     assert!((0.0..=1.0).contains(&nds), "{nds}");
+    let motion = &scores["motion"];
+    assert!(motion["agents"].as_u64().is_some_and(|n| n > 0), "{motion}");
+    let matched = motion["matched"].as_u64().expect("matched");
+    assert!(matched <= motion["agents"].as_u64().unwrap_or(0));
+    assert!(
+        matched > 0,
+        "the shipped detector matches some agent of the scene: {motion}"
+    );
+    let ade = motion["min_ade"].as_f64().expect("minADE");
+    let miss = motion["miss_rate"].as_f64().expect("miss rate");
+    assert!(
+        ade.is_finite() && ade >= 0.0 && (0.0..=1.0).contains(&miss),
+        "{motion}"
+    );
+
+    // Trajectories of another run (a box less in one sample) are refused, naming the sample.
+    let mut other = trajectories.clone();
+    let (sample, _) = results
+        .results
+        .iter()
+        .find(|(_, boxes)| !boxes.is_empty())
+        .expect("a sample with a detection");
+    other["samples"][sample]
+        .as_array_mut()
+        .expect("boxes")
+        .pop();
+    let other_path = dir.path().join("other-trajectories.json");
+    std::fs::write(&other_path, serde_json::to_vec(&other).expect("json")).expect("written");
+    let refused = bevworld_owned(&[
+        "eval".into(),
+        "detector".into(),
+        "--data".into(),
+        path(&data),
+        "--results".into(),
+        path(&out.join("results_nusc.json")),
+        "--trajectories".into(),
+        path(&other_path),
+    ]);
+    assert_eq!(refused.status.code(), Some(2), "{}", text(&refused));
+    assert!(
+        text(&refused).contains(sample.as_str()),
+        "{}",
+        text(&refused)
+    );
 }
 
 #[test]

@@ -12,7 +12,7 @@ use bevworld_metrics::detection::{
     DetectionConfig, DetectionScores, SampleTruth, TP_METRICS, evaluate, sample_truth,
 };
 use bevworld_sensors::{Dataset, DatasetOptions};
-use bevworld_types::DetectionResults;
+use bevworld_types::{DetectionResults, SensorFrame};
 use clap::Args;
 
 #[derive(Args)]
@@ -29,14 +29,19 @@ pub struct DetectorEvalArgs {
     /// The detections, in the nuScenes submission format.
     #[arg(long)]
     pub results: PathBuf,
+    /// The detector's trajectories (`trajectories.json` beside the results of
+    /// `detect.yaml`): minADE, minFDE and miss rate through the matched detections, beside
+    /// constant velocity.
+    #[arg(long)]
+    pub trajectories: Option<PathBuf>,
     /// Print one JSON object: `official` (the challenge's ten classes, as the devkit scores
     /// them) and `present_classes` (only the classes the dataset annotates).
     #[arg(long)]
     pub json: bool,
 }
 
-/// Every keyframe's truth, by sample token.
-fn truth_of(args: &DetectorEvalArgs) -> Result<BTreeMap<String, SampleTruth>> {
+/// Every keyframe's truth, by sample token, and the keyframes (without their images).
+fn truth_of(args: &DetectorEvalArgs) -> Result<(BTreeMap<String, SampleTruth>, Vec<SensorFrame>)> {
     let options = DatasetOptions {
         version: args.version.clone(),
         scenes: args.scenes.clone(),
@@ -46,22 +51,32 @@ fn truth_of(args: &DetectorEvalArgs) -> Result<BTreeMap<String, SampleTruth>> {
     let dataset = Dataset::open(&args.data, &options)
         .with_context(|| format!("opening {}", args.data.display()))?;
     let mut truth = BTreeMap::new();
+    let mut keyframes = Vec::new();
     for index in 0..dataset.len() {
         let frame = dataset.read(index)?;
         let (sample, sample_truth) = sample_truth(&frame)
             .map_err(|message| anyhow::anyhow!("{}: {message}", args.data.display()))?;
         truth.insert(sample, sample_truth);
+        keyframes.push(frame);
     }
     if truth.is_empty() {
         bail!("{} has no keyframe to score", args.data.display());
     }
-    Ok(truth)
+    Ok((truth, keyframes))
 }
 
 pub fn run(args: &DetectorEvalArgs) -> Result<ExitCode> {
     let results = DetectionResults::load(&args.results)
         .map_err(|error| super::refuse(format!("--results {error}")))?;
-    let truth = truth_of(args)?;
+    let (truth, keyframes) = truth_of(args)?;
+    let motion = match &args.trajectories {
+        Some(path) => Some(super::detector_motion::score(
+            path,
+            &results.results,
+            &keyframes,
+        )?),
+        None => None,
+    };
     let official = evaluate(&DetectionConfig::default(), &truth, &results.results)
         .with_context(|| format!("scoring {}", args.results.display()))?;
     let mut present: Vec<&str> = truth
@@ -87,6 +102,7 @@ pub fn run(args: &DetectorEvalArgs) -> Result<ExitCode> {
                 "samples": truth.len(),
                 "official": official,
                 "present_classes": on_present,
+                "motion": motion,
             })
         );
         return Ok(ExitCode::SUCCESS);
@@ -110,6 +126,19 @@ pub fn run(args: &DetectorEvalArgs) -> Result<ExitCode> {
         "Official (the challenge's ten classes, as the devkit scores them): mAP {:.4}, NDS {:.4}.",
         official.mean_ap, official.nd_score
     );
+    if let Some(m) = &motion {
+        println!(
+            "Motion, through the detections: minADE {:.3} m, minFDE {:.3} m, miss rate {:.3} over {} of {} agents with a whole future (constant velocity: {:.3} / {:.3} m, miss rate {:.3}).",
+            m.min_ade,
+            m.min_fde,
+            m.miss_rate,
+            m.matched,
+            m.agents,
+            m.constant_velocity_ade,
+            m.constant_velocity_fde,
+            m.constant_velocity_miss_rate
+        );
+    }
     Ok(ExitCode::SUCCESS)
 }
 

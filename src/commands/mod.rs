@@ -3,6 +3,7 @@
 pub mod contracts;
 pub mod control;
 pub mod detector_eval;
+pub mod detector_motion;
 pub mod detector_train;
 pub mod eval;
 pub mod graph_run;

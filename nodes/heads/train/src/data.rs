@@ -12,7 +12,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use bevworld_heads::{AgentTruth, DetectorConfig};
+use bevworld_heads::{AgentTruth, DetectorConfig, MotionConfig};
 use bevworld_metrics::detection::{SampleTruth, sample_truth};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_sinks::export_index::{ExportIndexError, read_export_index};
@@ -60,28 +60,31 @@ pub struct DetectionSet {
     pub channels: usize,
 }
 
-/// A keyframe's agents, in its ego frame, with their futures from `later` (the scene's next
-/// keyframes, `interval_s` apart, in order).
+/// A keyframe's agents of `classes` (detection names; `AgentTruth::class` indexes them), in
+/// its ego frame, with their futures at `motion`'s steps from `later` (the scene's next
+/// keyframes, in order).
 pub fn agents_of(
-    config: &DetectorConfig,
+    classes: &[String],
+    motion: &MotionConfig,
     frame: &SensorFrame,
     later: &[&SensorFrame],
 ) -> Vec<AgentTruth> {
     let ego_from_global = frame.global_from_ego.inverse();
-    let interval_us = config.motion.interval_s * 1e6;
+    let interval_us = motion.interval_s * 1e6;
     frame
         .boxes
         .iter()
         .filter(|object| object.num_pts > 0)
         .filter_map(|object| {
-            let class = config.class_index(detection_name_of(&object.category)?)?;
+            let name = detection_name_of(&object.category)?;
+            let class = classes.iter().position(|c| c == name)?;
             let centre = ego_from_global.transform_point3(object.global_from_box.translation);
             let ego_from_box = ego_from_global * object.global_from_box;
             let velocity = object.velocity.map(|[vx, vy]| {
                 let v = ego_from_global.transform_vector3(DVec3::new(vx, vy, 0.0));
                 [v.x, v.y]
             });
-            let future = (1..=config.motion.steps)
+            let future = (1..=motion.steps)
                 .map(|step| {
                     let next = later.get(step - 1)?;
                     let gap_us = (next.time_of_validity_us - frame.time_of_validity_us) as f64;
@@ -207,7 +210,7 @@ pub fn load_set(
                 global_from_ego: frame.global_from_ego,
                 map,
                 previous: (k > 0).then(|| frames.len() - 1),
-                agents: agents_of(config, frame, &later),
+                agents: agents_of(&config.classes, &config.motion, frame, &later),
             });
         }
     }

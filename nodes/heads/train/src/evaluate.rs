@@ -6,7 +6,7 @@
 
 use std::collections::BTreeMap;
 
-use bevworld_heads::{Detector, DetectorConfig, FrameMaps, InputSpec, PosedMap};
+use bevworld_heads::{Detector, DetectorConfig, FrameMaps, InputSpec, MotionConfig, PosedMap};
 use bevworld_metrics::detection::{DetectionConfig, DetectionScores, EvaluationError, evaluate};
 use bevworld_metrics::report_file::population_std;
 use bevworld_training::{WorkerPanicked, parallel_map};
@@ -149,11 +149,12 @@ pub struct MotionScores {
 
 /// Per matched agent: (minADE, minFDE) of the modes and of constant velocity.
 fn motion_errors(
-    config: &DetectorConfig,
+    classes: &[String],
+    motion: &MotionConfig,
     frame: &LabelledFrame,
     agents: &[DetectedAgent],
 ) -> (usize, Vec<[f64; 4]>) {
-    let steps = config.motion.steps;
+    let steps = motion.steps;
     let whole: Vec<(usize, Vec<[f64; 2]>)> = frame
         .agents
         .iter()
@@ -173,7 +174,7 @@ fn motion_errors(
             .iter()
             .enumerate()
             .filter(|(k, (i, _))| {
-                !taken[*k] && config.classes[frame.agents[*i].class] == detected.detection_name
+                !taken[*k] && classes[frame.agents[*i].class] == detected.detection_name
             })
             .map(|(k, (i, _))| {
                 let c = frame.agents[*i].centre;
@@ -206,7 +207,7 @@ fn motion_errors(
         }
         let constant: Vec<[f64; 2]> = (1..=steps)
             .map(|s| {
-                let t = s as f64 * config.motion.interval_s;
+                let t = s as f64 * motion.interval_s;
                 [
                     detected.centre[0] + detected.velocity[0] * t,
                     detected.centre[1] + detected.velocity[1] * t,
@@ -219,16 +220,17 @@ fn motion_errors(
     (whole.len(), errors)
 }
 
-/// Motion scores of `detections` on `frames`.
+/// Motion scores of `detections` on `frames`, whose agents' classes index `classes`.
 pub fn motion_scores(
-    config: &DetectorConfig,
+    classes: &[String],
+    motion: &MotionConfig,
     frames: &[&LabelledFrame],
     detections: &[&Vec<DetectedAgent>],
 ) -> MotionScores {
     let mut agents = 0;
     let mut errors = Vec::new();
     for (frame, detected) in frames.iter().zip(detections) {
-        let (count, frame_errors) = motion_errors(config, frame, detected);
+        let (count, frame_errors) = motion_errors(classes, motion, frame, detected);
         agents += count;
         errors.extend(frame_errors);
     }
@@ -294,7 +296,12 @@ pub fn evaluate_set(
     let detection = evaluate(&metric_config, &set.truth, &results)?;
     let all_frames: Vec<&LabelledFrame> = set.frames.iter().collect();
     let all_detections: Vec<&Vec<DetectedAgent>> = detections.iter().collect();
-    let motion = motion_scores(config, &all_frames, &all_detections);
+    let motion = motion_scores(
+        &config.classes,
+        &config.motion,
+        &all_frames,
+        &all_detections,
+    );
     let mut scenes = BTreeMap::new();
     let mut names: Vec<&String> = set.frames.iter().map(|f| &f.scene).collect();
     names.dedup();
@@ -320,7 +327,8 @@ pub fn evaluate_set(
         let frames: Vec<&LabelledFrame> = picked.iter().map(|&i| &set.frames[i]).collect();
         let scene_detections: Vec<&Vec<DetectedAgent>> =
             picked.iter().map(|&i| &detections[i]).collect();
-        let scene_motion = motion_scores(config, &frames, &scene_detections);
+        let scene_motion =
+            motion_scores(&config.classes, &config.motion, &frames, &scene_detections);
         scenes.insert(
             scene.clone(),
             [scores.nd_score, scores.mean_ap, scene_motion.min_ade],

@@ -103,7 +103,7 @@ fn motion_is_scored_through_the_matched_detection_by_hand() {
             vec![vec![[13.0, 0.0], [13.0, 0.0]]],
         ),
     ];
-    let scores = motion_scores(&config, &[&truth], &[&detections]);
+    let scores = motion_scores(&config.classes, &config.motion, &[&truth], &[&detections]);
     assert_eq!(scores.agents, 2, "the two cars have a whole future");
     assert_eq!(scores.matched, 1);
     // Mode 0: errors 0.5 and 0.5 → ADE 0.5, FDE 0.5; mode 1: 0 and 3 → ADE 1.5, FDE 3.
@@ -156,7 +156,7 @@ fn a_frames_agents_are_in_its_ego_frame_with_their_futures() {
     let next = sensor(500_000, vec![object(100.0, 62.0, 12)]);
     // The step after is 1.5 s on, not 1 s: a gap, so no position.
     let after_gap = sensor(1_500_000, vec![object(100.0, 66.0, 12)]);
-    let agents = agents_of(&config, &now, &[&next, &after_gap]);
+    let agents = agents_of(&config.classes, &config.motion, &now, &[&next, &after_gap]);
     assert_eq!(agents.len(), 1, "the box without a return is not learnt");
     let car = &agents[0];
     // 10 m ahead of the ego along global +y: its +x.
