@@ -23,15 +23,10 @@ from importlib.metadata import version
 import numpy as np
 from pyquaternion import Quaternion
 from nuscenes import NuScenes
-from nuscenes.eval.common.data_classes import EvalBoxes
-from nuscenes.eval.common.loaders import add_center_dist, filter_eval_boxes
-from nuscenes.eval.detection.config import config_factory
 from nuscenes.eval.detection.constants import TP_METRICS
-from nuscenes.eval.detection.data_classes import DetectionBox
-from nuscenes.eval.detection.utils import category_to_detection_name
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "devkit"))
-from detection_metrics import score  # noqa: E402
+from detection_metrics import devkit_scores, truth  # noqa: E402
 
 SEED, SCENES, SECONDS, PEDESTRIANS, CYCLISTS = 9800, 2, 6, 20, 6
 # A wrong attribute is the other of its class's pair.
@@ -46,27 +41,6 @@ def binary():
         if candidate and os.path.isfile(candidate):
             return candidate
     sys.exit("no bevworld binary: cargo build --release, or set BIN")
-
-
-def truth(nusc):
-    """load_gt, for every sample of the set."""
-    boxes = EvalBoxes()
-    for sample in nusc.sample:
-        rows = []
-        for token in sample["anns"]:
-            ann = nusc.get("sample_annotation", token)
-            name = category_to_detection_name(ann["category_name"])
-            if name is None:
-                continue
-            attrs = ann["attribute_tokens"]
-            attribute = nusc.get("attribute", attrs[0])["name"] if len(attrs) == 1 else ""
-            rows.append(DetectionBox(
-                sample_token=sample["token"], translation=ann["translation"], size=ann["size"],
-                rotation=ann["rotation"], velocity=nusc.box_velocity(token)[:2],
-                num_pts=ann["num_lidar_pts"] + ann["num_radar_pts"], detection_name=name,
-                detection_score=-1.0, attribute_name=attribute))
-        boxes.add_boxes(sample["token"], rows)
-    return boxes
 
 
 def noisy(gt, rng):
@@ -101,16 +75,6 @@ def noisy(gt, rng):
             })
         results[token] = rows
     return results
-
-
-def devkit_scores(nusc, gt, results):
-    """DetectionEval.evaluate on these boxes: the devkit's loaders' filters, then its scoring."""
-    cfg = config_factory("detection_cvpr_2019")
-    pred = EvalBoxes.deserialize(results, DetectionBox)
-    gt, pred = add_center_dist(nusc, gt), add_center_dist(nusc, pred)
-    gt = filter_eval_boxes(nusc, gt, cfg.class_range)
-    pred = filter_eval_boxes(nusc, pred, cfg.class_range)
-    return score(gt, pred, cfg)
 
 
 def main():

@@ -320,6 +320,76 @@ fn detection_metrics(f: &mut Figures) -> Result<Row, ReadmeError> {
     ))
 }
 
+/// The detection and motion heads on frozen features: NDS per input and frames, and the
+/// issue's targets computed from them.
+fn downstream(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "downstream";
+    let arms = f.value(file, "/arms")?;
+    let path = f.path(file);
+    let arm = |input: &str, frames: u64| -> Result<&Value, ReadmeError> {
+        arms.as_array()
+            .into_iter()
+            .flatten()
+            .find(|a| a["input"] == input && a["frames"] == frames && a["init"] == "frozen")
+            .ok_or_else(|| ReadmeError::Missing {
+                path: path.clone(),
+                pointer: format!("/arms (frozen {input}, {frames} frames)"),
+            })
+    };
+    let figure = |arm: &Value, pointer: &str| -> Result<f64, ReadmeError> {
+        arm.pointer(pointer)
+            .and_then(Value::as_f64)
+            .ok_or_else(|| ReadmeError::Missing {
+                path: path.clone(),
+                pointer: format!("/arms/…{pointer}"),
+            })
+    };
+    let mut cells = Vec::new();
+    let mut best_tokenizer: f64 = 0.0;
+    let mut best_stats: f64 = 0.0;
+    let mut two_frames_better = true;
+    let mut motion_beats_constant = true;
+    for input in ["bev_stats", "latent", "feature"] {
+        let (one, two) = (arm(input, 1)?, arm(input, 2)?);
+        let (nds_1, nds_2) = (figure(one, "/nds")?, figure(two, "/nds")?);
+        cells.push(format!("{input} {nds_1:.3} / {nds_2:.3}"));
+        let best = nds_1.max(nds_2);
+        if input == "bev_stats" {
+            best_stats = best;
+        } else {
+            best_tokenizer = best_tokenizer.max(best);
+        }
+        two_frames_better &= figure(two, "/tp_errors/vel_err")?
+            < figure(one, "/tp_errors/vel_err")?
+            && figure(two, "/motion/min_ade")? < figure(one, "/motion/min_ade")?;
+        for a in [one, two] {
+            motion_beats_constant &= figure(a, "/motion/min_ade")?
+                < figure(a, "/motion/constant_velocity_ade")?
+                && figure(a, "/motion/min_fde")? < figure(a, "/motion/constant_velocity_fde")?;
+        }
+    }
+    let gain = best_tokenizer / best_stats - 1.0;
+    let latent_two = arm("latent", 2)?;
+    Ok((
+        format!(
+            "Detection and motion heads on frozen features, held-out test scenes ({} keyframes, {} steps per arm)",
+            figure(latent_two, "/keyframes")?,
+            figure(latent_two, "/steps")?
+        ),
+        format!(
+            "NDS one / two frames: {}; the tokenizer's best over the pillar statistics' {:+.0}% (target +20%: {}); two frames better in mAVE and minADE on every input: {}; minADE {:.2} m against constant velocity's {:.2} m (latent, two frames; the motion head beats it on every arm: {})",
+            cells.join(", "),
+            100.0 * gain,
+            verdict(gain >= 0.2),
+            verdict(two_frames_better),
+            figure(latent_two, "/motion/min_ade")?,
+            figure(latent_two, "/motion/constant_velocity_ade")?,
+            verdict(motion_beats_constant),
+        ),
+        "[downstream.md](bench/results/downstream.md)",
+    ))
+}
+
 fn lidar_depth(f: &mut Figures) -> Result<Row, ReadmeError> {
     let file = "lidar_depth-synth-val";
     let last = f.count(file, "/by_range")?.saturating_sub(1);
@@ -601,6 +671,7 @@ pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
         control(&mut f)?,
         devkit(&mut f)?,
         detection_metrics(&mut f)?,
+        downstream(&mut f)?,
         lidar_depth(&mut f)?,
         inference(&mut f)?,
         vs_pytorch(&mut f, &["amd-epyc", "intel-xeon-avx512"])?,

@@ -1,0 +1,306 @@
+//! The downstream page: every arm of `bench/scripts/downstream.sh` (a run folder per input,
+//! frames and initialisation, each with `test/scores.json`) collected into one JSON, and the
+//! tables of `bench/results/downstream.md` generated from it, beside the paper's own table.
+//!
+//!   cargo run --release -p bevworld-bench --bin downstream -- --runs runs/downstream \
+//!     --graph-metrics out/detect-metrics.json \
+//!     --json bench/results/downstream.json --page bench/results/downstream.md
+//!
+//! `--graph-metrics` is a `bevworld run configs/graphs/detect.yaml --metrics FILE` report: the
+//! `detect` node's time per frame in the graph (p50, p99) and the encoder's beside it.
+//!   cargo run --release -p bevworld-bench --bin downstream -- --from bench/results/downstream.json \
+//!     --page bench/results/downstream.md     (the page again from the figures)
+
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value, json};
+
+/// The paper's "Comparison of whether use pretrained tokenizer" (nuScenes val): frames,
+/// pretrained, NDS, mAP, minADE, minFDE.
+const PAPER: [(&str, &str, f64, f64, f64, f64); 4] = [
+    ("single", "without", 0.366, 0.338, 2.055, 3.469),
+    ("single", "with", 0.415, 0.412, 1.851, 3.153),
+    ("two", "without", 0.392, 0.253, 1.426, 2.230),
+    ("two", "with", 0.476, 0.387, 0.971, 1.481),
+];
+
+fn arg(name: &str) -> Option<String> {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1).cloned())
+}
+
+fn read(path: &Path) -> Result<Value, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Every run under `runs` with a test score, in name order.
+fn collect(runs: &Path) -> Result<Value, String> {
+    let mut names: Vec<PathBuf> = std::fs::read_dir(runs)
+        .map_err(|e| format!("{}: {e}", runs.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join("test/scores.json").is_file())
+        .collect();
+    names.sort();
+    let mut arms = Vec::new();
+    for run in names {
+        let scores = read(&run.join("test/scores.json"))?;
+        let evaluation = &scores["evaluation"];
+        arms.push(json!({
+            "run": run.file_name().map(|n| n.to_string_lossy().to_string()),
+            "input": scores["input"],
+            "frames": scores["frames"],
+            "init": scores["init"],
+            "steps": scores["steps"],
+            "test_set": scores["test_set"],
+            "keyframes": evaluation["frames"],
+            "nds": evaluation["detection"]["nd_score"],
+            "map": evaluation["detection"]["mean_ap"],
+            "tp_errors": evaluation["detection"]["tp_errors"],
+            "class_ap": evaluation["detection"]["mean_dist_aps"],
+            "scene_spread": {"nds": evaluation["scene_spread"][0], "map": evaluation["scene_spread"][1], "min_ade": evaluation["scene_spread"][2]},
+            "motion": evaluation["motion"],
+        }));
+    }
+    let speed = match arg("--graph-metrics") {
+        Some(file) => {
+            let report = read(Path::new(&file))?;
+            let node = |id: &str| {
+                report["nodes"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .find(|n| n["id"] == id)
+                    .cloned()
+                    .unwrap_or(Value::Null)
+            };
+            let (detect, encode) = (node("detect"), node("encode"));
+            json!({
+                "graph": "configs/graphs/detect.yaml",
+                "cpu": bevworld_device::cpu_model(),
+                "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
+                "frames": detect["in"],
+                "detect_ms_p50": detect["latency_p50_us"].as_f64().map(|v| v / 1000.0),
+                "detect_ms_p99": detect["latency_p99_us"].as_f64().map(|v| v / 1000.0),
+                "encode_ms_p50": encode["latency_p50_us"].as_f64().map(|v| v / 1000.0),
+            })
+        }
+        None => Value::Null,
+    };
+    Ok(json!({
+        "speed": speed,
+        "note": "bench/scripts/downstream.sh: each arm trained on seeds 4000-4011, validated on 9200-9201, scored once on the test seeds 9600-9603; spreads are population deviations over the test scenes",
+        "arms": arms,
+        "paper": PAPER.iter().map(|(frames, pretrain, nds, map, ade, fde)| json!({
+            "frames": frames, "pretrain": pretrain, "nds": nds, "map": map, "min_ade": ade, "min_fde": fde,
+        })).collect::<Vec<_>>(),
+    }))
+}
+
+fn number(value: &Value, decimals: usize) -> String {
+    value
+        .as_f64()
+        .map_or_else(|| "—".to_string(), |v| format!("{v:.decimals$}"))
+}
+
+fn page(figures: &Value) -> String {
+    let mut text = String::new();
+    text.push_str("<!-- generated from bench/results/downstream.json by `cargo run --release -p bevworld-bench --bin downstream -- --from bench/results/downstream.json --page bench/results/downstream.md` -->\n");
+    text.push_str("| input | frames | encoder | steps | NDS | mAP | mATE | mASE | mAOE | mAVE | mAAE | minADE (m) | minFDE (m) | miss rate | const. vel. ADE / FDE (m) | agents matched |\n");
+    text.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    for arm in figures["arms"].as_array().into_iter().flatten() {
+        let tp = |name: &str| number(&arm["tp_errors"][name], 3);
+        let spread = &arm["scene_spread"];
+        let motion = &arm["motion"];
+        text.push_str(&format!(
+            "| {} | {} | {} | {} | {} ± {} | {} ± {} | {} | {} | {} | {} | {} | {} ± {} | {} | {} | {} / {} | {} of {} |\n",
+            arm["input"].as_str().unwrap_or("?"),
+            arm["frames"],
+            arm["init"].as_str().unwrap_or("?"),
+            arm["steps"],
+            number(&arm["nds"], 3),
+            number(&spread["nds"], 3),
+            number(&arm["map"], 3),
+            number(&spread["map"], 3),
+            tp("trans_err"),
+            tp("scale_err"),
+            tp("orient_err"),
+            tp("vel_err"),
+            tp("attr_err"),
+            number(&motion["min_ade"], 2),
+            number(&spread["min_ade"], 2),
+            number(&motion["min_fde"], 2),
+            number(&motion["miss_rate"], 3),
+            number(&motion["constant_velocity_ade"], 2),
+            number(&motion["constant_velocity_fde"], 2),
+            motion["matched"],
+            motion["agents"],
+        ));
+    }
+    text.push_str(&targets(figures));
+    text.push_str("\nThe paper's table (nuScenes val, its query head):\n\n| frames | pretrained tokenizer | NDS | mAP | minADE | minFDE |\n|---|---|---|---|---|---|\n");
+    for row in figures["paper"].as_array().into_iter().flatten() {
+        text.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} |\n",
+            row["frames"].as_str().unwrap_or("?"),
+            row["pretrain"].as_str().unwrap_or("?"),
+            number(&row["nds"], 3),
+            number(&row["map"], 3),
+            number(&row["min_ade"], 3),
+            number(&row["min_fde"], 3),
+        ));
+    }
+    text.push_str("\nPer class AP (mean over the 0.5/1/2/4 m thresholds):\n\n| input | frames |");
+    let arms: Vec<&Value> = figures["arms"].as_array().into_iter().flatten().collect();
+    let classes: Vec<String> = arms
+        .first()
+        .and_then(|a| a["class_ap"].as_object())
+        .map(|m| m.keys().cloned().collect())
+        .unwrap_or_default();
+    for class in &classes {
+        text.push_str(&format!(" {class} |"));
+    }
+    text.push_str(&format!("\n|---|---|{}\n", "---|".repeat(classes.len())));
+    for arm in arms {
+        text.push_str(&format!(
+            "| {} | {} |",
+            arm["input"].as_str().unwrap_or("?"),
+            arm["frames"]
+        ));
+        for class in &classes {
+            text.push_str(&format!(" {} |", number(&arm["class_ap"][class], 3)));
+        }
+        text.push('\n');
+    }
+    text
+}
+
+/// The arm of `input` with `frames`, when run.
+fn arm<'a>(figures: &'a Value, input: &str, frames: u64) -> Option<&'a Value> {
+    figures["arms"]
+        .as_array()?
+        .iter()
+        .find(|a| a["input"] == input && a["frames"] == frames)
+}
+
+fn verdict(met: bool) -> &'static str {
+    if met { "met" } else { "**missed**" }
+}
+
+/// The targets that these arms can answer, each computed from the figures.
+fn targets(figures: &Value) -> String {
+    let mut rows = Vec::new();
+    let f = |arm: Option<&Value>, pointer: &str| {
+        arm.and_then(|a| a.pointer(pointer)).and_then(Value::as_f64)
+    };
+    for frames in [1, 2] {
+        let stats = f(arm(figures, "bev_stats", frames), "/nds");
+        for input in ["latent", "feature"] {
+            if let (Some(ours), Some(stats)) = (f(arm(figures, input, frames), "/nds"), stats) {
+                let gain = ours / stats - 1.0;
+                rows.push(format!(
+                    "| frozen {input} against bev_stats, {frames} frame(s): NDS +20% relative | {ours:.3} against {stats:.3}: {:+.1}% | {} |",
+                    100.0 * gain,
+                    verdict(gain >= 0.2)
+                ));
+            }
+        }
+    }
+    for input in ["bev_stats", "latent", "feature"] {
+        let (one, two) = (arm(figures, input, 1), arm(figures, input, 2));
+        if let (Some(ave_1), Some(ave_2), Some(ade_1), Some(ade_2)) = (
+            f(one, "/tp_errors/vel_err"),
+            f(two, "/tp_errors/vel_err"),
+            f(one, "/motion/min_ade"),
+            f(two, "/motion/min_ade"),
+        ) {
+            rows.push(format!(
+                "| {input}: two frames beat one in mAVE and minADE | mAVE {ave_2:.3} against {ave_1:.3}, minADE {ade_2:.2} against {ade_1:.2} m | {} |",
+                verdict(ave_2 < ave_1 && ade_2 < ade_1)
+            ));
+        }
+    }
+    for a in figures["arms"].as_array().into_iter().flatten() {
+        let m = &a["motion"];
+        if let (Some(ade), Some(fde), Some(cv_ade), Some(cv_fde)) = (
+            m["min_ade"].as_f64(),
+            m["min_fde"].as_f64(),
+            m["constant_velocity_ade"].as_f64(),
+            m["constant_velocity_fde"].as_f64(),
+        ) {
+            rows.push(format!(
+                "| {} {}, {} frame(s): the motion head beats constant velocity | minADE {ade:.2} against {cv_ade:.2} m, minFDE {fde:.2} against {cv_fde:.2} m | {} |",
+                a["init"].as_str().unwrap_or("?"),
+                a["input"].as_str().unwrap_or("?"),
+                a["frames"],
+                verdict(ade < cv_ade && fde < cv_fde)
+            ));
+        }
+    }
+    let speed = &figures["speed"];
+    if let Some(ms) = speed["detect_ms_p50"].as_f64() {
+        rows.push(format!(
+            "| the detector in `detect.yaml` adds ≤ 30 ms per frame ({} threads, {}) | {ms:.1} ms p50, {:.1} ms p99 over {} frames (the encoder beside it: {:.1} ms p50) | {} |",
+            speed["threads"],
+            speed["cpu"].as_str().unwrap_or("?"),
+            speed["detect_ms_p99"].as_f64().unwrap_or(f64::NAN),
+            speed["frames"],
+            speed["encode_ms_p50"].as_f64().unwrap_or(f64::NAN),
+            verdict(ms <= 30.0)
+        ));
+    }
+    format!(
+        "\nThe targets these arms answer (test seeds, computed from the figures above):\n\n| target | figure | verdict |\n|---|---|---|\n{}\n",
+        rows.join("\n")
+    )
+}
+
+fn main() {
+    let figures = match (arg("--runs"), arg("--from")) {
+        (Some(runs), None) => collect(Path::new(&runs)),
+        (None, Some(from)) => read(Path::new(&from)),
+        _ => Err(
+            "usage: downstream (--runs DIR | --from FILE.json) [--json OUT.json] [--page OUT.md]"
+                .into(),
+        ),
+    };
+    let figures = match figures {
+        Ok(figures) => figures,
+        Err(error) => {
+            eprintln!("{error}");
+            std::process::exit(1);
+        }
+    };
+    if let Some(path) = arg("--json") {
+        let text = serde_json::to_string_pretty(&figures).unwrap_or_default();
+        if let Err(error) = std::fs::write(&path, text + "\n") {
+            eprintln!("{path}: {error}");
+            std::process::exit(1);
+        }
+    }
+    let tables = page(&figures);
+    match arg("--page") {
+        Some(path) => {
+            // The tables replace what lies between the page's markers; a page without them
+            // gets them at its end.
+            let begin = "<!-- downstream tables: begin -->";
+            let end = "<!-- downstream tables: end -->";
+            let existing = std::fs::read_to_string(&path).unwrap_or_default();
+            let block = format!("{begin}\n{tables}{end}");
+            let text = match (existing.find(begin), existing.find(end)) {
+                (Some(a), Some(b)) if a < b => {
+                    format!("{}{block}{}", &existing[..a], &existing[b + end.len()..])
+                }
+                _ => format!("{existing}{block}\n"),
+            };
+            if let Err(error) = std::fs::write(&path, text) {
+                eprintln!("{path}: {error}");
+                std::process::exit(1);
+            }
+        }
+        None => print!("{tables}"),
+    }
+}
