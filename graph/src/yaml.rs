@@ -1,7 +1,37 @@
 //! serde-saphyr's errors in our words: one line, the place as `line L, column C`, and none of
 //! the library's advice about its own options (a user cannot set them).
 
+use std::path::Path;
+
+use serde::de::DeserializeOwned;
 use serde_saphyr::Location;
+
+/// A YAML document that could not be read or parsed: the file (or origin) and what is wrong,
+/// with its line.
+#[derive(Debug, thiserror::Error)]
+#[error("{origin}: {message}")]
+pub struct YamlError {
+    pub origin: String,
+    pub message: String,
+}
+
+/// `text` parsed into `T`, an error naming `origin` and the line at fault.
+pub fn from_yaml_str<T: DeserializeOwned>(text: &str, origin: &str) -> Result<T, YamlError> {
+    serde_saphyr::from_str(text).map_err(|e| YamlError {
+        origin: origin.to_string(),
+        message: describe_at(&e, text),
+    })
+}
+
+/// The YAML file at `path` parsed into `T`: a config file's first step, before its own checks.
+pub fn from_yaml_file<T: DeserializeOwned>(path: &Path) -> Result<T, YamlError> {
+    let origin = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| YamlError {
+        origin: origin.clone(),
+        message: e.to_string(),
+    })?;
+    from_yaml_str(&text, &origin)
+}
 
 /// What is wrong, without the place (for callers that show the place themselves).
 pub fn describe(error: &serde_saphyr::Error) -> String {

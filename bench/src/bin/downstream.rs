@@ -6,6 +6,7 @@
 //!     --graph-metrics out/detect-metrics.json \
 //!     --json bench/results/downstream.json --page bench/results/downstream.md
 //!
+//! `--forecast FILE` adds `forecast_detection`'s figures (the detector on forecast latents).
 //! `--graph-metrics` is a `bevworld run configs/graphs/detect.yaml --metrics FILE` report: the
 //! `detect` node's time per frame in the graph (p50, p99) and the encoder's beside it.
 //!   cargo run --release -p bevworld-bench --bin downstream -- --from bench/results/downstream.json \
@@ -90,7 +91,12 @@ fn collect(runs: &Path) -> Result<Value, String> {
         }
         None => Value::Null,
     };
+    let forecast = match arg("--forecast") {
+        Some(file) => read(Path::new(&file))?,
+        None => Value::Null,
+    };
     Ok(json!({
+        "forecast": forecast,
         "speed": speed,
         "note": "bench/scripts/downstream.sh: each arm trained on seeds 4000-4011, validated on 9200-9201, scored once on the test seeds 9600-9603; spreads are population deviations over the test scenes",
         "arms": arms,
@@ -140,6 +146,7 @@ fn page(figures: &Value) -> String {
             motion["agents"],
         ));
     }
+    text.push_str(&forecast_table(&figures["forecast"]));
     text.push_str(&targets(figures));
     text.push_str("\nThe paper's table (nuScenes val, its query head):\n\n| frames | pretrained tokenizer | NDS | mAP | minADE | minFDE |\n|---|---|---|---|---|---|\n");
     for row in figures["paper"].as_array().into_iter().flatten() {
@@ -174,6 +181,36 @@ fn page(figures: &Value) -> String {
             text.push_str(&format!(" {} |", number(&arm["class_ap"][class], 3)));
         }
         text.push('\n');
+    }
+    text
+}
+
+/// The detector on the world model's forecast latents, beside the true future latent and the
+/// ego warp (`forecast_detection`'s figures), when measured.
+fn forecast_table(forecast: &Value) -> String {
+    let Some(horizons) = forecast["horizons"].as_array() else {
+        return String::new();
+    };
+    let mut text = format!(
+        "\nThe latent one-frame detector on the world model's forecast latents ({} forecasts of the test scenes, one DDIM step; `forecast_detection`), scored against the future keyframe's annotations:\n\n| horizon | latents | mAP | NDS | mATE | mAVE |\n|---|---|---|---|---|---|\n",
+        forecast["windows"]
+    );
+    for horizon in horizons {
+        for (method, label) in [
+            ("forecast", "world model forecast"),
+            ("latent_ego_warp", "`latent_ego_warp` (only the ego moves)"),
+            ("true_latent", "the true future keyframe's latent"),
+        ] {
+            let m = &horizon[method];
+            text.push_str(&format!(
+                "| +{} s | {label} | {} | {} | {} | {} |\n",
+                horizon["horizon_s"],
+                number(&m["map"], 3),
+                number(&m["nds"], 3),
+                number(&m["tp_errors"]["trans_err"], 3),
+                number(&m["tp_errors"]["vel_err"], 3),
+            ));
+        }
     }
     text
 }
@@ -237,6 +274,25 @@ fn targets(figures: &Value) -> String {
                 a["input"].as_str().unwrap_or("?"),
                 a["frames"],
                 verdict(ade < cv_ade && fde < cv_fde)
+            ));
+        }
+    }
+    for horizon in figures["forecast"]["horizons"]
+        .as_array()
+        .into_iter()
+        .flatten()
+    {
+        if horizon["horizon_s"].as_f64() != Some(1.0) {
+            continue;
+        }
+        let map = |method: &str| horizon[method]["map"].as_f64();
+        if let (Some(forecast), Some(truth), Some(warp)) =
+            (map("forecast"), map("true_latent"), map("latent_ego_warp"))
+        {
+            rows.push(format!(
+                "| the forecast carries the agents: mAP at +1 s ≥ 0.8× the true latent's and above `latent_ego_warp`'s | {forecast:.3} against {truth:.3} ({:.2}×) and {warp:.3} | {} |",
+                forecast / truth,
+                verdict(forecast >= 0.8 * truth && forecast > warp)
             ));
         }
     }

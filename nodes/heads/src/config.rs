@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use bevworld_blocks::swin::SwinConfig;
+use bevworld_graph::yaml::YamlError;
 use bevworld_types::detection::DETECTION_NAMES;
 use bevworld_types::problem::{require_count, require_positive};
 use bevworld_types::{BevGrid, ConfigProblem};
@@ -103,8 +104,8 @@ pub const BOX_CHANNELS: usize = 10;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("{path}: {message}")]
-    Read { path: String, message: String },
+    #[error(transparent)]
+    Read(#[from] YamlError),
     #[error("{path}: {}", problems.iter().map(ToString::to_string).collect::<Vec<_>>().join("; "))]
     Invalid {
         path: String,
@@ -112,31 +113,30 @@ pub enum ConfigError {
     },
 }
 
+/// `config` unless `problems` names something wrong with it.
+pub fn checked<T>(config: T, problems: Vec<ConfigProblem>, path: &str) -> Result<T, ConfigError> {
+    if problems.is_empty() {
+        Ok(config)
+    } else {
+        Err(ConfigError::Invalid {
+            path: path.to_string(),
+            problems,
+        })
+    }
+}
+
 impl DetectorConfig {
     /// Reads and checks a model YAML.
     pub fn from_yaml_file(path: &Path) -> Result<Self, ConfigError> {
-        let shown = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
-            path: shown.clone(),
-            message: e.to_string(),
-        })?;
-        Self::from_yaml(&text, &shown)
+        let config: Self = bevworld_graph::yaml::from_yaml_file(path)?;
+        let problems = config.problems();
+        checked(config, problems, &path.display().to_string())
     }
 
     pub fn from_yaml(text: &str, origin: &str) -> Result<Self, ConfigError> {
-        let config: Self = serde_saphyr::from_str(text).map_err(|e| ConfigError::Read {
-            path: origin.to_string(),
-            message: bevworld_graph::yaml::describe_at(&e, text),
-        })?;
+        let config: Self = bevworld_graph::yaml::from_yaml_str(text, origin)?;
         let problems = config.problems();
-        if problems.is_empty() {
-            Ok(config)
-        } else {
-            Err(ConfigError::Invalid {
-                path: origin.to_string(),
-                problems,
-            })
-        }
+        checked(config, problems, origin)
     }
 
     /// Every inconsistency, one line each, naming the field.

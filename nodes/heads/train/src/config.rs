@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use bevworld_heads::config::{ConfigError, checked};
 use bevworld_heads::{InputKind, LossWeights};
 use bevworld_sensors::synth::SynthSet;
 use bevworld_training::OptimizerConfig;
@@ -46,37 +47,11 @@ pub struct TrainDetectorConfig {
     pub checkpoint_every: usize,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("{path}: {message}")]
-    Read { path: String, message: String },
-    #[error("{path}: {}", problems.iter().map(ToString::to_string).collect::<Vec<_>>().join("; "))]
-    Invalid {
-        path: String,
-        problems: Vec<ConfigProblem>,
-    },
-}
-
 impl TrainDetectorConfig {
     pub fn from_yaml_file(path: &Path) -> Result<Self, ConfigError> {
-        let shown = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
-            path: shown.clone(),
-            message: e.to_string(),
-        })?;
-        let config: Self = serde_saphyr::from_str(&text).map_err(|e| ConfigError::Read {
-            path: shown.clone(),
-            message: bevworld_graph::yaml::describe_at(&e, &text),
-        })?;
+        let config: Self = bevworld_graph::yaml::from_yaml_file(path)?;
         let problems = config.problems();
-        if problems.is_empty() {
-            Ok(config)
-        } else {
-            Err(ConfigError::Invalid {
-                path: shown,
-                problems,
-            })
-        }
+        checked(config, problems, &path.display().to_string())
     }
 
     /// Every inconsistency, naming the field: among them, seed ranges that overlap, since a

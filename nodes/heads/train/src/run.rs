@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use bevworld_heads::config::ConfigError as ModelConfigError;
+use bevworld_heads::config::ConfigError;
 use bevworld_heads::weights::{DetectorWeightsError, save_detector};
 use bevworld_heads::{DetectorConfig, DetectorMeta, InputKind, InputSpec};
 use bevworld_training::checkpoint;
@@ -17,7 +17,7 @@ use bevworld_training::{LoopPlan, MetricsLog, Observer, Trainee, plot_curves, ru
 use bevworld_types::{DetectionResults, SubmissionMeta};
 use burn::prelude::*;
 
-use crate::config::{ConfigError, TrainDetectorConfig};
+use crate::config::TrainDetectorConfig;
 use crate::data::{DataError, DetectionSet, load_set};
 use crate::evaluate::{Evaluation, predict, results_of};
 use crate::trainer::{CURVES, DetectorTrainer, TrainError, columns};
@@ -60,8 +60,6 @@ pub struct TrainRequest {
 pub enum RunError {
     #[error(transparent)]
     Config(#[from] ConfigError),
-    #[error(transparent)]
-    ModelConfig(#[from] ModelConfigError),
     #[error(transparent)]
     Data(#[from] DataError),
     #[error("{0}")]
