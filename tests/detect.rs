@@ -14,7 +14,8 @@ fn path(p: &Path) -> String {
     p.display().to_string()
 }
 
-/// A two-second synthetic scene with pedestrians and cyclists.
+/// A five-second synthetic scene with pedestrians and cyclists: its first keyframes have the
+/// whole 3 s future the motion scores need.
 fn scene_with_people(data: &Path) {
     let output = bevworld_owned(&[
         "synth".into(),
@@ -23,7 +24,7 @@ fn scene_with_people(data: &Path) {
         "--seed".into(),
         "41".into(),
         "--seconds".into(),
-        "2".into(),
+        "5".into(),
         "--camera-size".into(),
         "64x36".into(),
         "--pedestrians".into(),
@@ -184,7 +185,7 @@ fn the_detector_refuses_the_latents_of_other_tokenizer_weights_by_digest() {
     );
     let message = text(&output);
     assert!(
-        message.contains("was trained on the latent of 'tokenizer-tiny' with weights"),
+        message.contains("was trained on the feature of 'tokenizer-tiny' with weights"),
         "{message}"
     );
     assert!(

@@ -234,7 +234,8 @@ pub fn motion_scores(
         agents += count;
         errors.extend(frame_errors);
     }
-    let n = errors.len().max(1) as f64;
+    // No matched agent: no figure (NaN, null in JSON), not a perfect one.
+    let n = errors.len() as f64;
     let mean = |k: usize| errors.iter().map(|e| e[k]).sum::<f64>() / n;
     let misses = |k: usize| errors.iter().filter(|e| e[k] > MISS_DISTANCE_M).count() as f64 / n;
     MotionScores {

@@ -113,6 +113,11 @@ fn motion_is_scored_through_the_matched_detection_by_hand() {
     // Constant velocity from x = 0.5 at 1 m/s: 1.0 then 1.5, against 1 and 2 → 0 and 0.5.
     assert!((scores.constant_velocity_ade - 0.25).abs() < 1e-12);
     assert!((scores.constant_velocity_fde - 0.5).abs() < 1e-12);
+
+    // Nothing detected: no figure, not a perfect one.
+    let none = motion_scores(&config.classes, &config.motion, &[&truth], &[&Vec::new()]);
+    assert_eq!((none.agents, none.matched), (2, 0));
+    assert!(none.min_ade.is_nan() && none.miss_rate.is_nan());
 }
 
 #[test]
