@@ -390,6 +390,40 @@ fn downstream(f: &mut Figures) -> Result<Row, ReadmeError> {
     ))
 }
 
+/// The latent detector on the world model's forecast latents at +1 s and +3 s.
+fn forecast_detection(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "forecast-detection";
+    let mut cells = Vec::new();
+    let mut met = false;
+    for (k, horizon) in [(0, "1"), (1, "3")] {
+        let map =
+            |f: &mut Figures, method: &str| f.number(file, &format!("/horizons/{k}/{method}/map"));
+        let (forecast, warp, truth) = (
+            map(f, "forecast")?,
+            map(f, "latent_ego_warp")?,
+            map(f, "true_latent")?,
+        );
+        if k == 0 {
+            met = forecast >= 0.8 * truth && forecast > warp;
+        }
+        cells.push(format!(
+            "+{horizon} s: forecast {forecast:.3}, `latent_ego_warp` {warp:.3}, the true future latent {truth:.3}"
+        ));
+    }
+    Ok((
+        format!(
+            "The latent detector on the world model's forecasts, held-out test scenes ({} forecasts), mAP",
+            f.count(file, "/windows")?
+        ),
+        format!(
+            "{}; at +1 s at least 0.8× the true latent's and above the ego warp's: {}",
+            cells.join("; "),
+            verdict(met)
+        ),
+        "[downstream.md](bench/results/downstream.md)",
+    ))
+}
+
 fn lidar_depth(f: &mut Figures) -> Result<Row, ReadmeError> {
     let file = "lidar_depth-synth-val";
     let last = f.count(file, "/by_range")?.saturating_sub(1);
@@ -672,6 +706,7 @@ pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
         devkit(&mut f)?,
         detection_metrics(&mut f)?,
         downstream(&mut f)?,
+        forecast_detection(&mut f)?,
         lidar_depth(&mut f)?,
         inference(&mut f)?,
         vs_pytorch(&mut f, &["amd-epyc", "intel-xeon-avx512"])?,

@@ -83,7 +83,7 @@ fn collect(runs: &Path) -> Result<Value, String> {
                 "graph": "configs/graphs/detect.yaml",
                 "cpu": bevworld_device::cpu_model(),
                 "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
-                "frames": detect["in"],
+                "frames": detect["items_in"],
                 "detect_ms_p50": detect["latency_p50_us"].as_f64().map(|v| v / 1000.0),
                 "detect_ms_p99": detect["latency_p99_us"].as_f64().map(|v| v / 1000.0),
                 "encode_ms_p50": encode["latency_p50_us"].as_f64().map(|v| v / 1000.0),
