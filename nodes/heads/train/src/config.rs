@@ -40,6 +40,9 @@ pub struct TrainDetectorConfig {
     pub seed: u64,
     pub steps: usize,
     pub batch: usize,
+    /// Keyframes per forward pass; the passes of a step spread over the worker threads and
+    /// their gradients are summed in order, so the run does not depend on the thread count.
+    pub micro_batch: usize,
     pub optimizer: OptimizerConfig,
     pub loss: LossWeights,
     /// Validation (on `val`) every this many steps, and at the end.
@@ -61,6 +64,7 @@ impl TrainDetectorConfig {
         for (field, value) in [
             ("steps", self.steps),
             ("batch", self.batch),
+            ("micro_batch", self.micro_batch),
             ("validate_every", self.validate_every),
             ("checkpoint_every", self.checkpoint_every),
         ] {

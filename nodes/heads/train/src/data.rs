@@ -49,6 +49,7 @@ pub struct LabelledFrame {
 }
 
 /// A set's keyframes and what the metrics score them against.
+#[derive(Clone)]
 pub struct DetectionSet {
     pub frames: Vec<LabelledFrame>,
     /// Every keyframe's truth for the detection metrics, by sample token.

@@ -211,8 +211,7 @@ impl DetectorTrainer {
         let draws: Vec<usize> = (0..self.config.batch)
             .map(|_| self.rng.below(frames))
             .collect();
-        let per_thread = self.config.batch.div_ceil(self.threads);
-        let micro: Vec<&[usize]> = draws.chunks(per_thread.max(1)).collect();
+        let micro: Vec<&[usize]> = draws.chunks(self.config.micro_batch.max(1)).collect();
         let (model, device, input, detector, targets, weights) = (
             &self.model,
             &self.device,

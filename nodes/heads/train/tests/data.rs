@@ -13,7 +13,7 @@ use bevworld_sinks::npy::npy_f32;
 use glam::DMat4;
 use serde_json::json;
 
-fn config() -> DetectorConfig {
+pub fn config() -> DetectorConfig {
     DetectorConfig::from_yaml(
         "
 name: detector-test
@@ -33,7 +33,7 @@ min_score: 0.1
 
 /// Writes one `[2, 8, 8]` map per keyframe of `dataset` (channel 0 the keyframe's position in
 /// the set, channel 1 all ones) and an index; `entry` may change each index entry.
-fn export(dataset: &Path, out: &Path, entry: impl Fn(usize, &mut serde_json::Value)) -> usize {
+pub fn export(dataset: &Path, out: &Path, entry: impl Fn(usize, &mut serde_json::Value)) -> usize {
     let options = DatasetOptions {
         skip_images: true,
         ..Default::default()
@@ -77,7 +77,7 @@ fn export(dataset: &Path, out: &Path, entry: impl Fn(usize, &mut serde_json::Val
     set.len()
 }
 
-fn synthetic_set(dir: &Path) {
+pub fn synthetic_set(dir: &Path) {
     let config = SynthConfig {
         seed: 11,
         seconds: 3.0,

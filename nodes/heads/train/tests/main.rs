@@ -1,2 +1,3 @@
 mod data;
 mod motion;
+mod train;
