@@ -40,6 +40,9 @@ pub struct DetectionsSinkParams {
     /// The picture's square, ±metres around the ego.
     #[serde(default = "default_half_extent")]
     pub half_extent_m: f64,
+    /// The picture draws the boxes scoring at least this (the JSON files keep every box).
+    #[serde(default = "default_picture_min_score")]
+    pub picture_min_score: f64,
     /// What the submission's `meta` says the detector used.
     #[serde(default)]
     pub use_camera: bool,
@@ -51,6 +54,10 @@ fn default_pictures() -> bool {
 
 fn default_half_extent() -> f64 {
     60.0
+}
+
+fn default_picture_min_score() -> f64 {
+    0.3
 }
 
 /// One box's modes, as `trajectories.json` lists them.
@@ -102,7 +109,12 @@ impl DetectionsSink {
             .map(|p| [p[0], p[1]])
             .collect();
         let mut lines = Vec::new();
-        for agent in &detections.agents {
+        let shown: Vec<_> = detections
+            .agents
+            .iter()
+            .filter(|a| a.score >= self.params.picture_min_score)
+            .collect();
+        for agent in &shown {
             let (s, c) = agent.yaw.sin_cos();
             let (half_w, half_l) = (agent.size[0] / 2.0, agent.size[1] / 2.0);
             let corner = |l: f64, w: f64| {
@@ -136,9 +148,10 @@ impl DetectionsSink {
             640,
             self.params.half_extent_m,
             &format!(
-                "{}: {} detections, best trajectory over {:.1} s",
-                detections.meta.frame_token,
+                "{} of {} detections (score >= {}), best trajectory over {:.1} s",
+                shown.len(),
                 detections.agents.len(),
+                self.params.picture_min_score,
                 detections.interval_s
                     * detections
                         .agents
@@ -275,6 +288,9 @@ pub fn register(registry: &mut Registry) {
             }
             if !(params.half_extent_m.is_finite() && params.half_extent_m > 0.0) {
                 return Err(ParamError::field("half_extent_m", "must be a number > 0"));
+            }
+            if !(0.0..=1.0).contains(&params.picture_min_score) {
+                return Err(ParamError::field("picture_min_score", "must lie in [0, 1]"));
             }
             Ok(())
         },
