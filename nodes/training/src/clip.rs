@@ -52,3 +52,27 @@ pub fn clip_global_norm<M: Module>(module: &M, grads: &mut GradientsParams, max_
     }
     norm
 }
+
+/// A step's gradient norm was not finite: nothing was applied.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("the gradient norm is {0}")]
+pub struct NonFiniteGradient(pub f64);
+
+/// The end of an optimiser step, the same for every model: the micro-batches' gradients
+/// summed in their order (`sum_in_order`), clipped to the global norm `max_norm`, and applied
+/// at `lr`. Returns the updated model and the norm before clipping; a non-finite norm applies
+/// nothing.
+pub fn apply_gradients<M: Module>(
+    model: M,
+    optimizer: &mut burn::optim::ModuleOptimizer,
+    parts: impl IntoIterator<Item = GradientsParams>,
+    max_norm: f64,
+    lr: f64,
+) -> Result<(M, f64), NonFiniteGradient> {
+    let mut grads = crate::parallel::sum_in_order(&model, parts);
+    let norm = clip_global_norm(&model, &mut grads, max_norm);
+    if !norm.is_finite() {
+        return Err(NonFiniteGradient(norm));
+    }
+    Ok((optimizer.step(lr, model, grads), norm))
+}

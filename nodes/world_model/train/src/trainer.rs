@@ -16,8 +16,8 @@ use bevworld_training::checkpoint::{self, CheckpointError, CheckpointState};
 use bevworld_training::ema::{self, MismatchedModules};
 use bevworld_training::metrics_log::MetricsLogError;
 use bevworld_training::{
-    Curve, StepReport, Trainee, Validation, WorkerPanicked, clip_global_norm, parallel_map,
-    replica, sum_in_order,
+    Curve, NonFiniteGradient, StepReport, Trainee, Validation, WorkerPanicked, apply_gradients,
+    parallel_map, replica,
 };
 use bevworld_types::SplitMix64;
 use bevworld_world_model::ddim::noisy_and_target;
@@ -435,24 +435,23 @@ impl WorldModelTrainer {
                 value: loss,
             });
         }
-        let mut grads = sum_in_order(&self.model, outcomes.into_iter().map(|(_, g)| g));
-        let grad_norm = clip_global_norm(
-            &self.model,
-            &mut grads,
-            self.config.optimizer.grad_clip_norm,
-        );
-        if !grad_norm.is_finite() {
-            return Err(TrainError::NonFinite {
-                step,
-                what: "gradient norm",
-                value: grad_norm,
-            });
-        }
         let lr = self
             .config
             .optimizer
             .learning_rate(self.step - stage_start, stage.steps);
-        self.model = self.optimizer.step(lr, self.model.clone(), grads);
+        let (model, grad_norm) = apply_gradients(
+            self.model.clone(),
+            &mut self.optimizer,
+            outcomes.into_iter().map(|(_, g)| g),
+            self.config.optimizer.grad_clip_norm,
+            lr,
+        )
+        .map_err(|NonFiniteGradient(value)| TrainError::NonFinite {
+            step,
+            what: "gradient norm",
+            value,
+        })?;
+        self.model = model;
         if let (Some(decay), Some(average)) = (self.config.ema_decay, self.weight_average.take()) {
             self.weight_average = Some(ema::update(average, &self.model, decay, step)?);
         }
