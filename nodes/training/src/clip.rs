@@ -43,12 +43,9 @@ pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
 /// before clipping.
 pub fn clip_global_norm<M: Module>(module: &M, grads: &mut GradientsParams, max_norm: f64) -> f64 {
     let norm = global_norm(module, grads);
-    if norm.is_finite() && norm > max_norm && max_norm > 0.0 {
-        let mut visitor = Scale {
-            grads,
-            factor: (max_norm / norm) as f32,
-        };
-        module.visit(&mut visitor);
+    let factor = clip_factor(norm, max_norm);
+    if factor < 1.0 {
+        module.visit(&mut Scale { grads, factor });
     }
     norm
 }
@@ -57,6 +54,25 @@ pub fn clip_global_norm<M: Module>(module: &M, grads: &mut GradientsParams, max_
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 #[error("the gradient norm is {0}")]
 pub struct NonFiniteGradient(pub f64);
+
+/// The factor that brings a gradient of norm `norm` to at most `max_norm` (1 when it is within
+/// it, or when clipping is off).
+fn clip_factor(norm: f64, max_norm: f64) -> f32 {
+    if norm.is_finite() && norm > max_norm && max_norm > 0.0 {
+        (max_norm / norm) as f32
+    } else {
+        1.0
+    }
+}
+
+/// A part of a model with its own optimiser and learning rate, and the gradients of its
+/// parameters from each micro-batch, in order.
+pub struct Part<'a, M: Module> {
+    pub model: M,
+    pub optimizer: &'a mut burn::optim::ModuleOptimizer,
+    pub grads: Vec<GradientsParams>,
+    pub lr: f64,
+}
 
 /// The end of an optimiser step, the same for every model: the micro-batches' gradients
 /// summed in their order (`sum_in_order`), clipped to the global norm `max_norm`, and applied
@@ -75,4 +91,39 @@ pub fn apply_gradients<M: Module>(
         return Err(NonFiniteGradient(norm));
     }
     Ok((optimizer.step(lr, model, grads), norm))
+}
+
+/// `apply_gradients` for a model trained as two parts, each with its optimiser and rate (a
+/// pretrained encoder fine-tuned at a fraction of its head's rate): the global norm is taken
+/// over both parts' gradients together, and both are clipped by the same factor, as one
+/// model's would be. Returns both parts and the norm before clipping.
+pub fn apply_gradients_in_two<A: Module, B: Module>(
+    first: Part<'_, A>,
+    second: Part<'_, B>,
+    max_norm: f64,
+) -> Result<(A, B, f64), NonFiniteGradient> {
+    let mut grads_a = crate::parallel::sum_in_order(&first.model, first.grads);
+    let mut grads_b = crate::parallel::sum_in_order(&second.model, second.grads);
+    let (norm_a, norm_b) = (
+        global_norm(&first.model, &grads_a),
+        global_norm(&second.model, &grads_b),
+    );
+    let norm = (norm_a * norm_a + norm_b * norm_b).sqrt();
+    if !norm.is_finite() {
+        return Err(NonFiniteGradient(norm));
+    }
+    let factor = clip_factor(norm, max_norm);
+    if factor < 1.0 {
+        first.model.visit(&mut Scale {
+            grads: &mut grads_a,
+            factor,
+        });
+        second.model.visit(&mut Scale {
+            grads: &mut grads_b,
+            factor,
+        });
+    }
+    let a = first.optimizer.step(first.lr, first.model, grads_a);
+    let b = second.optimizer.step(second.lr, second.model, grads_b);
+    Ok((a, b, norm))
 }

@@ -23,7 +23,9 @@ pub mod schedule;
 pub use bevworld_types::ConfigProblem;
 pub use bevworld_types::problem::{require_count, require_non_negative, require_positive};
 pub use checkpoint::{CheckpointError, CheckpointFiles, CheckpointState};
-pub use clip::{NonFiniteGradient, apply_gradients, clip_global_norm, global_norm};
+pub use clip::{
+    NonFiniteGradient, Part, apply_gradients, apply_gradients_in_two, clip_global_norm, global_norm,
+};
 pub use curves::{Curve, plot_curves};
 pub use metrics_log::{MetricsLog, Row};
 pub use optimizer::OptimizerConfig;

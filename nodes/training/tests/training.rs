@@ -287,3 +287,120 @@ fn a_checkpoint_is_refused_when_its_step_or_files_were_changed() {
     let message = refusal("a pointer out of the folder");
     assert!(message.contains("latest"), "{message}");
 }
+
+#[test]
+fn two_parts_are_clipped_by_their_joint_norm_as_one_model_would_be() {
+    use bevworld_training::{Part, apply_gradients, apply_gradients_in_two};
+    use burn::nn::{Linear, LinearConfig};
+    use burn::optim::GradientsParams;
+
+    #[derive(Module, Debug)]
+    struct Pair {
+        a: Linear,
+        b: Linear,
+    }
+    let device = Device::flex().autodiff();
+    let pair = seeded_init(3, &device, |d| Pair {
+        a: LinearConfig::new(3, 2).init(d),
+        b: LinearConfig::new(2, 1).init(d),
+    });
+    let x = Tensor::<2>::from_floats([[1.0, -2.0, 0.5], [0.3, 0.7, -1.1]], &device);
+    let loss = pair.b.forward(pair.a.forward(x)).powf_scalar(2.0).sum();
+    let mut grads = loss.backward();
+    let grads_a = GradientsParams::from_module(&mut grads, &pair.a);
+    let grads_b = GradientsParams::from_module(&mut grads, &pair.b);
+    // The joint norm by hand: every parameter's squared gradient, summed over both parts.
+    let mut squares = 0.0f64;
+    for values in [
+        module_grads(&pair.a, &grads_a),
+        module_grads(&pair.b, &grads_b),
+    ] {
+        squares += values.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>();
+    }
+    let expected_norm = squares.sqrt();
+    assert!(expected_norm > 0.1, "the gradient is not trivial");
+    let max_norm = expected_norm / 4.0;
+
+    let config = bevworld_training::OptimizerConfig {
+        lr: 0.1,
+        beta_1: 0.9,
+        beta_2: 0.999,
+        epsilon: 1e-8,
+        weight_decay: 0.0,
+        warmup_steps: 0,
+        final_lr_fraction: 1.0,
+        decay_steps: None,
+        grad_clip_norm: max_norm,
+    };
+    // The same gradients for the pair as one model.
+    let mut whole = GradientsParams::new();
+    for (part, grads) in [(&pair.a, &grads_a), (&pair.b, &grads_b)] {
+        copy_grads(part, grads, &mut whole);
+    }
+    let (mut first, mut second) = (config.adamw(), config.adamw());
+    let (a, b, norm) = apply_gradients_in_two(
+        Part {
+            model: pair.a.clone(),
+            optimizer: &mut first,
+            grads: vec![grads_a],
+            lr: 0.1,
+        },
+        Part {
+            model: pair.b.clone(),
+            optimizer: &mut second,
+            grads: vec![grads_b],
+            lr: 0.1,
+        },
+        max_norm,
+    )
+    .expect("a finite norm");
+    assert!((norm - expected_norm).abs() < 1e-5 * expected_norm);
+
+    let (joined, joined_norm) =
+        apply_gradients(pair.clone(), &mut config.adamw(), [whole], max_norm, 0.1)
+            .expect("a finite norm");
+    assert!((joined_norm - norm).abs() < 1e-9);
+    let split: Vec<f32> = [module_values(&a), module_values(&b)].concat();
+    for (x, y) in split.iter().zip(module_values(&joined)) {
+        assert!((x - y).abs() < 1e-6, "{x} against {y}");
+    }
+    // And the step moved the weights.
+    assert_ne!(
+        split,
+        [module_values(&pair.a), module_values(&pair.b)].concat()
+    );
+}
+
+fn module_grads<M: Module>(module: &M, grads: &burn::optim::GradientsParams) -> Vec<f32> {
+    struct Collect<'a>(&'a burn::optim::GradientsParams, Vec<f32>);
+    impl ModuleVisitor for Collect<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            if let Some(grad) = self.0.get::<D>(param.id) {
+                self.1
+                    .extend(grad.into_data().try_to_vec::<f32>().expect("f32"));
+            }
+        }
+    }
+    let mut collect = Collect(grads, Vec::new());
+    module.visit(&mut collect);
+    collect.1
+}
+
+fn copy_grads<M: Module>(
+    module: &M,
+    from: &burn::optim::GradientsParams,
+    into: &mut burn::optim::GradientsParams,
+) {
+    struct Copy<'a>(
+        &'a burn::optim::GradientsParams,
+        &'a mut burn::optim::GradientsParams,
+    );
+    impl ModuleVisitor for Copy<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            if let Some(grad) = self.0.get::<D>(param.id) {
+                self.1.register(param.id, grad);
+            }
+        }
+    }
+    module.visit(&mut Copy(from, into));
+}

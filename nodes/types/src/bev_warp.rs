@@ -77,22 +77,21 @@ impl LatentGrid {
     }
 }
 
-/// The latent of frame `a` seen from frame `b`: each cell of `b` takes the bilinear sample of
-/// `latent_a` at its centre moved into `a` by `a_from_b`. Cells whose sample falls outside
-/// `a`'s grid take `outside` (the standardised zero, the mean latent, for standardised input),
-/// blended in where only some of the four neighbours are outside.
-// latent_a: [C, H, W] -> [C, H, W]
-pub fn warp_latent(
-    latent_a: &[f32],
-    grid: &LatentGrid,
-    a_from_b: &PlanarMotion,
-    outside: f32,
-) -> Vec<f32> {
+/// One cell's bilinear sample: up to four cells of the source map (row-major index in one
+/// channel's plane) and their weights; corners outside the grid are left out, so the weights
+/// sum to less than 1 near the edge.
+pub type WarpTaps = Vec<(u32, f32)>;
+
+/// Where each cell of `b` samples the map of `a` under `a_from_b`: every cell's centre moved
+/// into `a` and read bilinearly (cell centres at integer coordinates). The same taps serve
+/// every channel, and a differentiable warp (a gather and a weighted sum) as well as
+/// `warp_latent`.
+// -> one `WarpTaps` per cell of b, row-major [H * W]
+pub fn warp_taps(grid: &LatentGrid, a_from_b: &PlanarMotion) -> Vec<WarpTaps> {
     let (h, w) = (grid.height, grid.width);
     let cell_x = (grid.x_range[1] - grid.x_range[0]) / w as f64;
     let cell_y = (grid.y_range[1] - grid.y_range[0]) / h as f64;
-    let plane = h * w;
-    let mut out = vec![outside; grid.len()];
+    let mut taps = Vec::with_capacity(h * w);
     for i in 0..h {
         for j in 0..w {
             let centre_b = [
@@ -111,19 +110,44 @@ pub fn warp_latent(
                 (i0 + 1.0, j0, (1.0 - fu) * fv),
                 (i0 + 1.0, j0 + 1.0, fu * fv),
             ];
-            for c in 0..grid.channels {
-                let mut value = 0.0f32;
-                for &(ci, cj, weight) in &corners {
-                    let inside = ci >= 0.0 && cj >= 0.0 && ci < h as f64 && cj < w as f64;
-                    value += weight
-                        * if inside {
-                            latent_a[c * plane + ci as usize * w + cj as usize]
-                        } else {
-                            outside
-                        };
-                }
-                out[c * plane + i * w + j] = value;
+            taps.push(
+                corners
+                    .iter()
+                    .filter(|&&(ci, cj, _)| {
+                        ci >= 0.0 && cj >= 0.0 && ci < h as f64 && cj < w as f64
+                    })
+                    .map(|&(ci, cj, weight)| ((ci as usize * w + cj as usize) as u32, weight))
+                    .collect(),
+            );
+        }
+    }
+    taps
+}
+
+/// The latent of frame `a` seen from frame `b`: each cell of `b` takes the bilinear sample of
+/// `latent_a` at its centre moved into `a` by `a_from_b` (`warp_taps`). Cells whose sample
+/// falls outside `a`'s grid take `outside` (the standardised zero, the mean latent, for
+/// standardised input), blended in where only some of the four neighbours are outside.
+// latent_a: [C, H, W] -> [C, H, W]
+pub fn warp_latent(
+    latent_a: &[f32],
+    grid: &LatentGrid,
+    a_from_b: &PlanarMotion,
+    outside: f32,
+) -> Vec<f32> {
+    let plane = grid.height * grid.width;
+    let taps = warp_taps(grid, a_from_b);
+    let mut out = vec![outside; grid.len()];
+    for c in 0..grid.channels {
+        let source = &latent_a[c * plane..(c + 1) * plane];
+        for (cell, cell_taps) in taps.iter().enumerate() {
+            let mut value = 0.0f32;
+            let mut inside = 0.0f32;
+            for &(index, weight) in cell_taps {
+                value += weight * source[index as usize];
+                inside += weight;
             }
+            out[c * plane + cell] = value + (1.0 - inside) * outside;
         }
     }
     out

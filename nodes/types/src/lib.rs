@@ -34,7 +34,7 @@ pub mod splitmix;
 
 pub use action::EgoAction;
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
-pub use bev_warp::{LatentGrid, PlanarMotion, warp_latent};
+pub use bev_warp::{LatentGrid, PlanarMotion, WarpTaps, warp_latent, warp_taps};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
 pub use detected_agents::{DetectedAgent, FrameDetections, TrajectoryMode};
 pub use detection::{Detection, DetectionResults, SubmissionMeta, detection_name_of};
