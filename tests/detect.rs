@@ -202,6 +202,10 @@ fn train_detector_refuses_bad_flags_and_overlapping_seed_ranges_before_any_work(
         (vec!["--frames", "3"], "--frames"),
         (vec!["--input", "lidar"], "bev_stats"),
         (vec!["--init", "imagenet"], "frozen"),
+        (
+            vec!["--init", "scratch", "--input", "bev_stats"],
+            "no encoder",
+        ),
         (vec!["--steps", "0"], "--steps 0"),
     ] {
         let mut args = vec![

@@ -9,7 +9,8 @@
 //!   never on the data (sensors, pillarization), the metrics or the sinks;
 //! - the data families (sensors, pillarization, sinks, metrics) depend on the runtime, the
 //!   types, the blocks and the plots, never on each other or on a model;
-//! - a model's training crate is where model, data and metrics meet;
+//! - a model's training crate is where model, data and metrics meet (the heads' also trains the
+//!   tokenizer's encoder, for the paper's pretraining arms);
 //! - the CLI and the benchmarks may use anything.
 //!
 //! And every crate builds burn with the features the whole workspace does, so that
@@ -75,6 +76,10 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "bevworld-blocks",
             "bevworld-training",
             "bevworld-heads",
+            // The paper's pretraining arms train the tokenizer's encoder with the heads, on
+            // images and pillars.
+            "bevworld-tokenizer",
+            "bevworld-pillarize",
             "bevworld-sensors",
             "bevworld-sinks",
             "bevworld-metrics",

@@ -45,6 +45,10 @@ impl InputArg {
 pub enum InitArg {
     /// The shipped tokenizer's exported features, the encoder frozen: only the heads learn.
     Frozen,
+    /// The shipped tokenizer's encoder, fine-tuned with the heads on images and pillars.
+    Tokenizer,
+    /// The same encoder freshly initialised, trained with the heads.
+    Scratch,
 }
 
 #[derive(Args)]
@@ -53,7 +57,8 @@ pub struct TrainDetectorArgs {
     #[arg(long, default_value = "configs/models/train-detector-tiny.yaml")]
     pub config: PathBuf,
     /// Run folder: checkpoints, metrics.csv, curves.png, detector.bpk and its metadata, and
-    /// test/ (results_nusc.json and scores.json on the test set).
+    /// test/ (results_nusc.json and scores.json on the test set); with --init tokenizer or
+    /// scratch also tokenizer.bpk, the trained encoder whose features the detector reads.
     #[arg(long)]
     pub out: PathBuf,
     /// The BEV product the detector reads.
@@ -76,7 +81,7 @@ pub struct TrainDetectorArgs {
     pub threads: Option<usize>,
     #[arg(long, default_value_t = 10)]
     pub log_every: usize,
-    /// Make and export the sets, then stop.
+    /// Make the sets (and export their features, for --init frozen), then stop.
     #[arg(long)]
     pub prepare_only: bool,
 }
@@ -148,6 +153,8 @@ pub fn run(args: &TrainDetectorArgs) -> Result<ExitCode> {
         frames: usize::from(args.frames),
         init: match args.init {
             InitArg::Frozen => Init::Frozen,
+            InitArg::Tokenizer => Init::Tokenizer,
+            InitArg::Scratch => Init::Scratch,
         },
         out: args.out.clone(),
         resume: args.resume,
@@ -167,8 +174,21 @@ pub fn run(args: &TrainDetectorArgs) -> Result<ExitCode> {
     // The flags and configs are checked before the sets are made, which takes minutes.
     let config = bevworld_heads_train::effective_config(&request)?;
     bevworld_heads::DetectorConfig::from_yaml_file(&config.model)?;
+    if request.init.trains_encoder() && request.input == InputKind::BevStats {
+        return Err(super::refuse(format!(
+            "--init {} trains the tokenizer's encoder with the heads, but the pillar statistics (--input bev_stats) have no encoder: read --input latent or feature",
+            request.init.name()
+        )));
+    }
     for set in [&config.train, &config.val, &config.test] {
-        ensure_features(set, request.input, &config)?;
+        if request.init.trains_encoder() {
+            // The encoder in the loop makes its own maps from the images and pillars.
+            set.synth
+                .ensure()
+                .with_context(|| format!("making the synthetic set {}", set.synth.dir.display()))?;
+        } else {
+            ensure_features(set, request.input, &config)?;
+        }
     }
     if args.prepare_only {
         println!("features ready for {}", request.input.name());

@@ -44,6 +44,9 @@ pub struct TrainDetectorConfig {
     /// their gradients are summed in order, so the run does not depend on the thread count.
     pub micro_batch: usize,
     pub optimizer: OptimizerConfig,
+    /// `--init tokenizer`: the pretrained encoder's learning rate as a fraction of the heads'
+    /// (a fresh encoder, `--init scratch`, learns at the heads' rate: it has nothing to keep).
+    pub fine_tune_lr_fraction: f64,
     pub loss: LossWeights,
     /// Validation (on `val`) every this many steps, and at the end.
     pub validate_every: usize,
@@ -69,6 +72,15 @@ impl TrainDetectorConfig {
             ("checkpoint_every", self.checkpoint_every),
         ] {
             require_count(&mut problems, field, value);
+        }
+        if !(self.fine_tune_lr_fraction > 0.0 && self.fine_tune_lr_fraction <= 1.0) {
+            problems.push(ConfigProblem::new(
+                "fine_tune_lr_fraction",
+                format!(
+                    "{} is not in (0, 1]: the pretrained encoder learns at a fraction of the heads' rate",
+                    self.fine_tune_lr_fraction
+                ),
+            ));
         }
         for (field, value) in [
             ("loss.heatmap", self.loss.heatmap),

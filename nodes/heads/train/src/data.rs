@@ -139,8 +139,8 @@ pub fn load_set(
         first.weights_hash.clone(),
         first.shape.clone(),
     );
-    let mut maps: HashMap<String, (Vec<f32>, usize)> = HashMap::new();
-    for (order, entry) in entries.iter().enumerate() {
+    let mut maps: HashMap<String, Vec<f32>> = HashMap::new();
+    for entry in &entries {
         if entry.model != model || entry.weights_hash != weights_hash {
             return Err(invalid(format!(
                 "frame {} was made by '{}' with weights {}, frame {} by '{model}' with weights {weights_hash}: one export, one model",
@@ -153,21 +153,52 @@ pub fn load_set(
                 entry.frame_token, entry.shape, first.frame_token
             )));
         }
-        maps.insert(
-            entry.sample_token.clone(),
-            (entry.read_values(features)?, order),
-        );
+        maps.insert(entry.sample_token.clone(), entry.read_values(features)?);
     }
-
-    let dataset_error = |message: String| DataError::Dataset {
-        path: dataset.to_path_buf(),
-        message,
-    };
     let options = DatasetOptions {
         skip_images: true,
         ..Default::default()
     };
-    let opened = Dataset::open(dataset, &options).map_err(|e| dataset_error(e.to_string()))?;
+    let (frames, truth) = read_keyframes(dataset, &options, config, |frame| {
+        maps.remove(&frame.sample_token).ok_or_else(|| {
+            invalid(format!(
+                "has no map of keyframe {} (scene {}); export the set again into {}",
+                frame.sample_token,
+                frame.scene_name,
+                features.display()
+            ))
+        })
+    })?;
+    if let Some((sample, _)) = maps.iter().next() {
+        return Err(invalid(format!(
+            "holds a map of sample {sample}, which {} does not have: features of another set",
+            dataset.display()
+        )));
+    }
+    Ok(DetectionSet {
+        frames,
+        truth,
+        model,
+        weights_hash,
+        grid,
+        channels: shape[0],
+    })
+}
+
+/// A set's keyframes, scene by scene in time order, each with its agents and the map
+/// `map_of` gives it (read from an export, or left for an encoder to make), and every
+/// keyframe's truth for the detection metrics.
+pub fn read_keyframes(
+    dataset: &Path,
+    options: &DatasetOptions,
+    config: &DetectorConfig,
+    mut map_of: impl FnMut(&SensorFrame) -> Result<Vec<f32>, DataError>,
+) -> Result<(Vec<LabelledFrame>, BTreeMap<String, SampleTruth>), DataError> {
+    let dataset_error = |message: String| DataError::Dataset {
+        path: dataset.to_path_buf(),
+        message,
+    };
+    let opened = Dataset::open(dataset, options).map_err(|e| dataset_error(e.to_string()))?;
     let mut keyframes = Vec::with_capacity(opened.len());
     for index in 0..opened.len() {
         keyframes.push(
@@ -189,14 +220,7 @@ pub fn load_set(
         indices.sort_by_key(|&i| keyframes[i].time_of_validity_us);
         for (k, &i) in indices.iter().enumerate() {
             let frame = &keyframes[i];
-            let (map, _) = maps.remove(&frame.sample_token).ok_or_else(|| {
-                invalid(format!(
-                    "has no map of keyframe {} (scene {}); export the set again into {}",
-                    frame.sample_token,
-                    frame.scene_name,
-                    features.display()
-                ))
-            })?;
+            let map = map_of(frame)?;
             let later: Vec<&SensorFrame> = indices[k + 1..]
                 .iter()
                 .take(config.motion.steps)
@@ -215,20 +239,7 @@ pub fn load_set(
             });
         }
     }
-    if let Some((sample, _)) = maps.iter().next() {
-        return Err(invalid(format!(
-            "holds a map of sample {sample}, which {} does not have: features of another set",
-            dataset.display()
-        )));
-    }
-    Ok(DetectionSet {
-        frames,
-        truth,
-        model,
-        weights_hash,
-        grid,
-        channels: shape[0],
-    })
+    Ok((frames, truth))
 }
 
 impl DetectionSet {

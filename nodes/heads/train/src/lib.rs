@@ -8,6 +8,7 @@
 
 pub mod config;
 pub mod data;
+pub mod encoder;
 pub mod evaluate;
 pub mod run;
 pub mod trainer;

@@ -17,25 +17,51 @@ use bevworld_training::{LoopPlan, MetricsLog, Observer, Trainee, plot_curves, ru
 use bevworld_types::{DetectionResults, SubmissionMeta};
 use burn::prelude::*;
 
+use bevworld_tokenizer::nodes::loaded_model::UNTRAINED;
+use bevworld_tokenizer::{
+    EncoderArrays, FrameInputs, Tokenizer, TokenizerConfig, load_weights, save_weights,
+    weights_digest,
+};
+
 use crate::config::TrainDetectorConfig;
 use crate::data::{DataError, DetectionSet, load_set};
+use crate::encoder::{encode_maps, load_encoder_set};
 use crate::evaluate::{Evaluation, predict, results_of};
-use crate::trainer::{CURVES, DetectorTrainer, TrainError, columns};
+use crate::trainer::{CURVES, DetectorTrainer, EncoderInLoop, TrainError, columns};
 
-/// How the encoder that makes the features starts: `frozen` reads the exported features of the
-/// shipped tokenizer, so only the heads learn (what a user of the export gets).
+/// How the encoder that makes the features starts, the paper's pretraining comparison plus
+/// what a user of the export gets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Init {
+    /// The shipped tokenizer's exported features: the encoder frozen, only the heads learn.
     Frozen,
+    /// The shipped tokenizer's encoder, fine-tuned with the heads (at
+    /// `fine_tune_lr_fraction` of their rate).
+    Tokenizer,
+    /// The same encoder freshly initialised (from the run's seed), trained with the heads at
+    /// their rate.
+    Scratch,
 }
 
 impl Init {
     pub fn name(self) -> &'static str {
         match self {
             Init::Frozen => "frozen",
+            Init::Tokenizer => "tokenizer",
+            Init::Scratch => "scratch",
         }
     }
+
+    /// Whether the encoder trains in the loop (and the sets' features are made by it, not
+    /// exported).
+    pub fn trains_encoder(self) -> bool {
+        self != Init::Frozen
+    }
 }
+
+/// The weights a trained encoder is written to, in the run folder: export with them
+/// (`--set models.tiny.tokenizer.weights=RUN/tokenizer.bpk`) to feed the detector beside it.
+pub const ENCODER_WEIGHTS: &str = "tokenizer.bpk";
 
 /// One run, as asked for.
 #[derive(Clone, Debug, PartialEq)]
@@ -138,16 +164,22 @@ pub fn train(
         }
         (Err(error), true) => return Err(error.into()),
     };
-    let load = |set: &crate::config::FeatureSet| {
-        load_set(&set.folder(request.input), &set.synth.dir, &detector)
+    let threads = request
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let sets = if request.init.trains_encoder() {
+        encoder_sets(request, &config, &detector, device)?
+    } else {
+        exported_sets(request, &config, &detector)?
     };
-    let train_set = load(&config.train)?;
-    let val_set = load(&config.val)?;
-    let test_set = load(&config.test)?;
-    same_maker("validation", &val_set, &train_set)?;
-    same_maker("test", &test_set, &train_set)?;
+    let Sets {
+        train: train_set,
+        val: val_set,
+        test: test_set,
+        encoder,
+    } = sets;
     let (mean, std) = train_set.channel_statistics();
-    let input = InputSpec {
+    let mut input = InputSpec {
         kind: request.input,
         channels: train_set.channels,
         grid: train_set.grid,
@@ -163,9 +195,6 @@ pub fn train(
             config.train.folder(request.input).display()
         )));
     }
-    let threads = request
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let autodiff = device.clone().autodiff();
     let mut trainer = DetectorTrainer::new(
         config.clone(),
@@ -176,6 +205,20 @@ pub fn train(
         &autodiff,
         threads,
     )?;
+    let mut test_set = test_set;
+    let mut test_arrays = None;
+    if let Some(encoder) = encoder {
+        let tokenizer = encoder.initial.fork(&autodiff).train();
+        test_arrays = Some(encoder.test);
+        trainer = trainer.with_encoder(EncoderInLoop::new(
+            encoder.config,
+            tokenizer,
+            config.optimizer.adamw(),
+            encoder.lr_fraction,
+            encoder.train,
+            encoder.val,
+        ));
+    }
     if has_checkpoint {
         trainer = trainer.resume(&request.out)?;
     }
@@ -206,6 +249,14 @@ pub fn train(
     )?;
     if trainer.last_evaluation().is_none() {
         trainer.validate()?;
+    }
+    // A trained encoder is written beside the detector, and the detector reads its features.
+    if let (Some(tokenizer), Some(arrays)) = (trainer.shipped_encoder(), &test_arrays) {
+        let path = request.out.join(ENCODER_WEIGHTS);
+        save_weights(&tokenizer, &path).map_err(|e| RunError::Input(e.to_string()))?;
+        input.weights_hash = weights_digest(&path).map_err(|e| RunError::Input(e.to_string()))?;
+        encode_maps(&tokenizer, input.kind, &mut test_set, arrays, device)
+            .map_err(|e| RunError::Train(TrainError::Encoder(e)))?;
     }
     let weights = request.out.join("detector.bpk");
     let meta = DetectorMeta {
@@ -264,6 +315,110 @@ pub fn train(
         test,
         test_results,
         test_scores,
+    })
+}
+
+/// The three sets a run reads, and with the encoder in the loop, what it starts from.
+struct Sets {
+    train: DetectionSet,
+    val: DetectionSet,
+    test: DetectionSet,
+    encoder: Option<EncoderStart>,
+}
+
+/// The encoder a run trains: its config and initial weights (on the inference device), its
+/// rate, and every keyframe's encoder inputs.
+struct EncoderStart {
+    config: TokenizerConfig,
+    initial: Tokenizer,
+    lr_fraction: f64,
+    train: Vec<EncoderArrays>,
+    val: Vec<EncoderArrays>,
+    test: Vec<EncoderArrays>,
+}
+
+/// The three sets' exported features and annotations (`--init frozen`).
+fn exported_sets(
+    request: &TrainRequest,
+    config: &TrainDetectorConfig,
+    detector: &DetectorConfig,
+) -> Result<Sets, RunError> {
+    let load = |set: &crate::config::FeatureSet| {
+        load_set(&set.folder(request.input), &set.synth.dir, detector)
+    };
+    let train = load(&config.train)?;
+    let val = load(&config.val)?;
+    let test = load(&config.test)?;
+    same_maker("validation", &val, &train)?;
+    same_maker("test", &test, &train)?;
+    Ok(Sets {
+        train,
+        val,
+        test,
+        encoder: None,
+    })
+}
+
+/// The three sets read from their datasets with every keyframe's encoder inputs, and the
+/// encoder's initial weights (`--init tokenizer|scratch`). The training and validation maps are
+/// the initial encoder's, which fixes the standardisation for the whole run (a fresh encoder's
+/// features are standardised like a trained one's).
+fn encoder_sets(
+    request: &TrainRequest,
+    config: &TrainDetectorConfig,
+    detector: &DetectorConfig,
+    device: &Device,
+) -> Result<Sets, RunError> {
+    if request.input == InputKind::BevStats {
+        return Err(RunError::Input(format!(
+            "--init {} trains the tokenizer's encoder with the heads, but the pillar statistics have no encoder: read --input latent or feature",
+            request.init.name()
+        )));
+    }
+    let tokenizer_config = TokenizerConfig::from_yaml_file(&config.tokenizer_model)
+        .map_err(|e| RunError::Input(e.to_string()))?;
+    let (initial, weights_hash, lr_fraction) = match request.init {
+        Init::Tokenizer => (
+            load_weights(&tokenizer_config, &config.tokenizer_weights, device)
+                .map_err(|e| RunError::Input(e.to_string()))?,
+            weights_digest(&config.tokenizer_weights)
+                .map_err(|e| RunError::Input(e.to_string()))?,
+            config.fine_tune_lr_fraction,
+        ),
+        Init::Scratch | Init::Frozen => (
+            tokenizer_config.init_seeded(config.seed, device),
+            UNTRAINED.to_string(),
+            1.0,
+        ),
+    };
+    let inputs = FrameInputs::new(&tokenizer_config);
+    let load = |set: &crate::config::FeatureSet| {
+        load_encoder_set(
+            &set.synth.dir,
+            detector,
+            &inputs,
+            request.input,
+            &tokenizer_config.name,
+            &weights_hash,
+        )
+    };
+    let (mut train, train_arrays) = load(&config.train)?;
+    let (mut val, val_arrays) = load(&config.val)?;
+    let (test, test_arrays) = load(&config.test)?;
+    encode_maps(&initial, request.input, &mut train, &train_arrays, device)?;
+    encode_maps(&initial, request.input, &mut val, &val_arrays, device)?;
+    Ok(Sets {
+        train,
+        val,
+        test,
+        encoder: Some(EncoderStart {
+            config: tokenizer_config,
+            initial,
+            lr_fraction,
+            train: train_arrays,
+            val: val_arrays,
+            test: test_arrays,
+        }),
     })
 }
 

@@ -11,11 +11,12 @@ use bevworld_blocks::module_file::{ModuleFileError, load_module, save_module};
 use bevworld_blocks::seeded_init;
 use bevworld_heads::{Detector, DetectorConfig, FrameTargets, InputSpec};
 use bevworld_metrics::detection::EvaluationError;
+use bevworld_tokenizer::{EncoderArrays, Tokenizer, TokenizerConfig};
 use bevworld_training::checkpoint::{self, CheckpointError, CheckpointState};
 use bevworld_training::metrics_log::MetricsLogError;
 use bevworld_training::{
-    Curve, NonFiniteGradient, StepReport, Trainee, Validation, WorkerPanicked, apply_gradients,
-    parallel_map, replica,
+    Curve, NonFiniteGradient, Part, StepReport, Trainee, Validation, WorkerPanicked,
+    apply_gradients, apply_gradients_in_two, parallel_map, replica,
 };
 use bevworld_types::SplitMix64;
 use burn::module::Module;
@@ -23,7 +24,8 @@ use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 
 use crate::config::TrainDetectorConfig;
-use crate::data::DetectionSet;
+use crate::data::{DataError, DetectionSet};
+use crate::encoder::{encode_maps, encoded_batch};
 use crate::evaluate::{Evaluation, evaluate_set, input_batch, predict};
 
 /// Every column of the run's `metrics.csv`.
@@ -79,6 +81,43 @@ pub const CURVES: [Curve; 3] = [
 pub mod files {
     pub const MODEL: &str = "model.bpk";
     pub const OPTIMIZER: &str = "optimizer.bpk";
+    /// With the encoder in the loop: the tokenizer being trained, and its optimiser.
+    pub const ENCODER: &str = "encoder.bpk";
+    pub const ENCODER_OPTIMIZER: &str = "encoder-optimizer.bpk";
+}
+
+/// The encoder trained with the heads (`--init tokenizer|scratch`): the tokenizer whose
+/// product the detector reads, its own optimiser at a fraction of the heads' rate, and every
+/// training and validation keyframe's encoder inputs.
+pub struct EncoderInLoop {
+    pub config: TokenizerConfig,
+    /// On the trainer's autodiff device.
+    pub tokenizer: Tokenizer,
+    /// The encoder's learning rate as a fraction of the heads'.
+    pub lr_fraction: f64,
+    pub train: Vec<EncoderArrays>,
+    pub val: Vec<EncoderArrays>,
+    optimizer: ModuleOptimizer,
+}
+
+impl EncoderInLoop {
+    pub fn new(
+        config: TokenizerConfig,
+        tokenizer: Tokenizer,
+        optimizer: ModuleOptimizer,
+        lr_fraction: f64,
+        train: Vec<EncoderArrays>,
+        val: Vec<EncoderArrays>,
+    ) -> Self {
+        Self {
+            config,
+            tokenizer,
+            lr_fraction,
+            train,
+            val,
+            optimizer,
+        }
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -99,6 +138,8 @@ pub enum TrainError {
     Predict(WorkerPanicked),
     #[error(transparent)]
     Evaluation(#[from] EvaluationError),
+    #[error("the encoder's maps: {0}")]
+    Encoder(#[from] DataError),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     #[error(transparent)]
@@ -122,6 +163,7 @@ pub struct DetectorTrainer {
     step: usize,
     threads: usize,
     last: Option<Evaluation>,
+    encoder: Option<EncoderInLoop>,
 }
 
 fn scalar(tensor: Tensor<1>) -> f64 {
@@ -158,6 +200,7 @@ impl DetectorTrainer {
             step: 0,
             threads: threads.max(1),
             last: None,
+            encoder: None,
             targets,
             train,
             val,
@@ -184,6 +227,22 @@ impl DetectorTrainer {
             .adamw()
             .load(file(files::OPTIMIZER))
             .map_err(|e| checkpoint::io_error(&file(files::OPTIMIZER), format!("{e:?}")))?;
+        if let Some(encoder) = self.encoder.as_mut() {
+            encoder.tokenizer = load_module(
+                encoder.config.init(&self.device),
+                "tokenizer",
+                &encoder.config.name,
+                &file(files::ENCODER),
+            )?;
+            encoder.optimizer = self
+                .config
+                .optimizer
+                .adamw()
+                .load(file(files::ENCODER_OPTIMIZER))
+                .map_err(|e| {
+                    checkpoint::io_error(&file(files::ENCODER_OPTIMIZER), format!("{e:?}"))
+                })?;
+        }
         self.step = state.step;
         self.rng = SplitMix64 {
             state: state.rng_state,
@@ -191,8 +250,20 @@ impl DetectorTrainer {
         Ok(self)
     }
 
+    /// Trains `encoder` with the heads: each step's input is its product, not the exported
+    /// maps, and validation detects on the maps it makes of the validation set.
+    pub fn with_encoder(mut self, encoder: EncoderInLoop) -> Self {
+        self.encoder = Some(encoder);
+        self
+    }
+
     pub fn input(&self) -> &InputSpec {
         &self.input
+    }
+
+    /// The encoder's weights as they stand, on the inner device, if it trains.
+    pub fn shipped_encoder(&self) -> Option<Tokenizer> {
+        self.encoder.as_ref().map(|e| e.tokenizer.valid())
     }
 
     pub fn last_evaluation(&self) -> Option<&Evaluation> {
@@ -221,13 +292,19 @@ impl DetectorTrainer {
             &self.config.loss,
         );
         let set_frames = &self.train.frames;
+        let encoder = self.encoder.as_ref();
         let batch = self.config.batch as f64;
         let outcomes = parallel_map(
             &micro,
             self.threads,
-            || replica(model),
-            |model, draws| {
-                let tensor = input_batch(input, set_frames, draws, device);
+            || (replica(model), encoder.map(|e| replica(&e.tokenizer))),
+            |(model, tokenizer), draws| {
+                let tensor = match (tokenizer, encoder) {
+                    (Some(tokenizer), Some(encoder)) => {
+                        encoded_batch(tokenizer, input, set_frames, &encoder.train, draws, device)
+                    }
+                    _ => input_batch(input, set_frames, draws, device),
+                };
                 let outputs = model.forward(tensor);
                 let frame_targets: Vec<&FrameTargets> =
                     draws.iter().map(|&i| &targets[i]).collect();
@@ -241,14 +318,18 @@ impl DetectorTrainer {
                 ];
                 let total = loss.total.mul_scalar(share);
                 let value = scalar(total.clone());
-                let grads = GradientsParams::from_grads(total.backward(), model);
-                (value, terms, grads)
+                let mut grads = total.backward();
+                let heads = GradientsParams::from_module(&mut grads, model);
+                let encoder_grads = tokenizer
+                    .as_ref()
+                    .map(|tokenizer| GradientsParams::from_module(&mut grads, tokenizer));
+                (value, terms, heads, encoder_grads)
             },
         )
         .map_err(|source| TrainError::StepWorker { step, source })?;
-        let loss: f64 = outcomes.iter().map(|(v, _, _)| v).sum();
+        let loss: f64 = outcomes.iter().map(|(v, _, _, _)| v).sum();
         let mut terms = [0.0; 3];
-        for (_, t, _) in &outcomes {
+        for (_, t, _, _) in &outcomes {
             for k in 0..3 {
                 terms[k] += t[k];
             }
@@ -264,18 +345,38 @@ impl DetectorTrainer {
             .config
             .optimizer
             .learning_rate(self.step, self.config.steps);
-        let (model, grad_norm) = apply_gradients(
-            self.model.clone(),
-            &mut self.optimizer,
-            outcomes.into_iter().map(|(_, _, g)| g),
-            self.config.optimizer.grad_clip_norm,
-            lr,
-        )
-        .map_err(|NonFiniteGradient(value)| TrainError::NonFinite {
+        let refused = |NonFiniteGradient(value)| TrainError::NonFinite {
             step,
             what: "gradient norm",
             value,
-        })?;
+        };
+        let max_norm = self.config.optimizer.grad_clip_norm;
+        let (heads, encoder_grads): (Vec<_>, Vec<_>) =
+            outcomes.into_iter().map(|(_, _, h, e)| (h, e)).unzip();
+        let (model, grad_norm) = match self.encoder.as_mut() {
+            Some(encoder) => {
+                let (model, tokenizer, norm) = apply_gradients_in_two(
+                    Part {
+                        model: self.model.clone(),
+                        optimizer: &mut self.optimizer,
+                        grads: heads,
+                        lr,
+                    },
+                    Part {
+                        model: encoder.tokenizer.clone(),
+                        optimizer: &mut encoder.optimizer,
+                        grads: encoder_grads.into_iter().flatten().collect(),
+                        lr: lr * encoder.lr_fraction,
+                    },
+                    max_norm,
+                )
+                .map_err(refused)?;
+                encoder.tokenizer = tokenizer;
+                (model, norm)
+            }
+            None => apply_gradients(self.model.clone(), &mut self.optimizer, heads, max_norm, lr)
+                .map_err(refused)?,
+        };
         self.model = model;
         self.step = step;
         Ok(StepReport {
@@ -318,6 +419,17 @@ impl Trainee for DetectorTrainer {
     }
 
     fn validate(&mut self) -> Result<Vec<Validation>, TrainError> {
+        if let Some(encoder) = &self.encoder {
+            let inference = self.device.clone().inner();
+            let tokenizer = encoder.tokenizer.valid();
+            encode_maps(
+                &tokenizer,
+                self.input.kind,
+                &mut self.val,
+                &encoder.val,
+                &inference,
+            )?;
+        }
         let evaluation = self.evaluate(&self.shipped_model(), &self.val)?;
         let scores = evaluation.as_scores();
         let frames = evaluation.frames;
@@ -337,6 +449,19 @@ impl Trainee for DetectorTrainer {
         self.optimizer
             .save(file(files::OPTIMIZER))
             .map_err(|e| checkpoint::io_error(&file(files::OPTIMIZER), format!("{e:?}")))?;
+        if let Some(encoder) = &self.encoder {
+            save_module(
+                &encoder.tokenizer.valid(),
+                "tokenizer",
+                &file(files::ENCODER),
+            )?;
+            encoder
+                .optimizer
+                .save(file(files::ENCODER_OPTIMIZER))
+                .map_err(|e| {
+                    checkpoint::io_error(&file(files::ENCODER_OPTIMIZER), format!("{e:?}"))
+                })?;
+        }
         let state = CheckpointState {
             step: self.step,
             rng_state: self.rng.state,

@@ -1,3 +1,4 @@
 mod data;
+mod encoder;
 mod motion;
 mod train;

@@ -33,6 +33,7 @@ steps: 30
 batch: 4
 micro_batch: 2
 optimizer: {{lr: 2.0e-3, beta_1: 0.9, beta_2: 0.999, epsilon: 1.0e-8, weight_decay: 0.01, warmup_steps: 2, final_lr_fraction: 0.1, grad_clip_norm: 10.0}}
+fine_tune_lr_fraction: 0.1
 loss: {{heatmap: 1.0, boxes: 0.25, motion: 0.1}}
 validate_every: 100
 checkpoint_every: 100
