@@ -320,30 +320,53 @@ fn detection_metrics(f: &mut Figures) -> Result<Row, ReadmeError> {
     ))
 }
 
+/// The first arm of `downstream.json` that `wanted` accepts (`what` names it in the error).
+fn downstream_arm<'a>(
+    arms: &'a Value,
+    path: &Path,
+    what: &str,
+    wanted: impl Fn(&Value) -> bool,
+) -> Result<&'a Value, ReadmeError> {
+    arms.as_array()
+        .into_iter()
+        .flatten()
+        .find(|a| wanted(a))
+        .ok_or_else(|| ReadmeError::Missing {
+            path: path.to_path_buf(),
+            pointer: format!("/arms ({what})"),
+        })
+}
+
+/// A figure of one arm.
+fn arm_figure(arm: &Value, path: &Path, pointer: &str) -> Result<f64, ReadmeError> {
+    arm.pointer(pointer)
+        .and_then(Value::as_f64)
+        .ok_or_else(|| ReadmeError::Missing {
+            path: path.to_path_buf(),
+            pointer: format!("/arms/…{pointer}"),
+        })
+}
+
 /// The detection and motion heads on frozen features: NDS per input and frames, and the
 /// issue's targets computed from them.
 fn downstream(f: &mut Figures) -> Result<Row, ReadmeError> {
     let file = "downstream";
     let arms = f.value(file, "/arms")?;
     let path = f.path(file);
-    let arm = |input: &str, frames: u64| -> Result<&Value, ReadmeError> {
-        arms.as_array()
-            .into_iter()
-            .flatten()
-            .find(|a| a["input"] == input && a["frames"] == frames && a["init"] == "frozen")
-            .ok_or_else(|| ReadmeError::Missing {
-                path: path.clone(),
-                pointer: format!("/arms (frozen {input}, {frames} frames)"),
-            })
+    let arm = |input: &str, frames: u64| {
+        downstream_arm(
+            &arms,
+            &path,
+            &format!("frozen {input}, {frames} frames"),
+            |a| {
+                a["input"] == input
+                    && a["frames"] == frames
+                    && a["init"] == "frozen"
+                    && a["table"] != "pretrain"
+            },
+        )
     };
-    let figure = |arm: &Value, pointer: &str| -> Result<f64, ReadmeError> {
-        arm.pointer(pointer)
-            .and_then(Value::as_f64)
-            .ok_or_else(|| ReadmeError::Missing {
-                path: path.clone(),
-                pointer: format!("/arms/…{pointer}"),
-            })
-    };
+    let figure = |arm: &Value, pointer: &str| arm_figure(arm, &path, pointer);
     let mut cells = Vec::new();
     let mut best_tokenizer: f64 = 0.0;
     let mut best_stats: f64 = 0.0;
@@ -385,6 +408,59 @@ fn downstream(f: &mut Figures) -> Result<Row, ReadmeError> {
             figure(latent_two, "/motion/min_ade")?,
             figure(latent_two, "/motion/constant_velocity_ade")?,
             verdict(motion_beats_constant),
+        ),
+        "[downstream.md](bench/results/downstream.md)",
+    ))
+}
+
+/// The paper's pretraining comparison at our scale: the encoder trained with the heads from
+/// the tokenizer's weights against from scratch, on the fused feature, one and two frames.
+fn pretraining(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let file = "downstream";
+    let arms = f.value(file, "/arms")?;
+    let path = f.path(file);
+    let arm = |init: &str, frames: u64| {
+        downstream_arm(
+            &arms,
+            &path,
+            &format!("pretrain {init}, {frames} frames"),
+            |a| a["table"] == "pretrain" && a["init"] == init && a["frames"] == frames,
+        )
+    };
+    let figure = |arm: &Value, pointer: &str| arm_figure(arm, &path, pointer);
+    let mut cells = Vec::new();
+    let mut pays = true;
+    for frames in [1, 2] {
+        let (scratch, tokenizer, frozen) = (
+            arm("scratch", frames)?,
+            arm("tokenizer", frames)?,
+            arm("frozen", frames)?,
+        );
+        let (nds_0, nds, map_0, map) = (
+            figure(scratch, "/nds")?,
+            figure(tokenizer, "/nds")?,
+            figure(scratch, "/map")?,
+            figure(tokenizer, "/map")?,
+        );
+        pays &= nds >= 1.1 * nds_0 && map >= 1.1 * map_0;
+        cells.push(format!(
+            "{frames} frame(s): scratch {nds_0:.3}, tokenizer {nds:.3} ({:+.0}% NDS, {:+.0}% mAP), frozen {:.3}",
+            100.0 * (nds / nds_0 - 1.0),
+            100.0 * (map / map_0 - 1.0),
+            figure(frozen, "/nds")?,
+        ));
+    }
+    let one = arm("tokenizer", 1)?;
+    Ok((
+        format!(
+            "The paper's pretraining comparison: the encoder trained with the heads, held-out test scenes ({} keyframes, {} steps per arm)",
+            figure(one, "/keyframes")?,
+            figure(one, "/steps")?
+        ),
+        format!(
+            "NDS {}; the tokenizer's weights beat scratch by ≥ 10% NDS and mAP in both modes: {}",
+            cells.join("; "),
+            verdict(pays)
         ),
         "[downstream.md](bench/results/downstream.md)",
     ))
@@ -706,6 +782,7 @@ pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
         devkit(&mut f)?,
         detection_metrics(&mut f)?,
         downstream(&mut f)?,
+        pretraining(&mut f)?,
         forecast_detection(&mut f)?,
         lidar_depth(&mut f)?,
         inference(&mut f)?,

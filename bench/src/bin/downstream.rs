@@ -6,7 +6,9 @@
 //!     --graph-metrics out/detect-metrics.json \
 //!     --json bench/results/downstream.json --page bench/results/downstream.md
 //!
-//! `--forecast FILE` adds `forecast_detection`'s figures (the detector on forecast latents).
+//! `--forecast FILE` adds `forecast_detection`'s figures (the detector on forecast latents);
+//! `--graph-check FILE --graph-check-run RUN` a run scored again through `detect.yaml` (the
+//! `eval detector --json` of its results there).
 //! `--graph-metrics` is a `bevworld run configs/graphs/detect.yaml --metrics FILE` report: the
 //! `detect` node's time per frame in the graph (p50, p99) and the encoder's beside it.
 //!   cargo run --release -p bevworld-bench --bin downstream -- --from bench/results/downstream.json \
@@ -24,6 +26,9 @@ const PAPER: [(&str, &str, f64, f64, f64, f64); 4] = [
     ("two", "without", 0.392, 0.253, 1.426, 2.230),
     ("two", "with", 0.476, 0.387, 0.971, 1.481),
 ];
+
+/// The run folders of the pretraining table.
+const PRETRAIN_PREFIX: &str = "pretrain-";
 
 fn arg(name: &str) -> Option<String> {
     let args: Vec<String> = std::env::args().collect();
@@ -50,8 +55,20 @@ fn collect(runs: &Path) -> Result<Value, String> {
     for run in names {
         let scores = read(&run.join("test/scores.json"))?;
         let evaluation = &scores["evaluation"];
+        let name = run
+            .file_name()
+            .map(|n| n.to_string_lossy().to_string())
+            .unwrap_or_default();
+        // downstream.sh's two tables: the exports read frozen (`frozen-*`, one budget) and the
+        // paper's pretraining comparison on the fused feature (`pretrain-*`, another).
+        let table = if name.starts_with(PRETRAIN_PREFIX) {
+            "pretrain"
+        } else {
+            "export"
+        };
         arms.push(json!({
-            "run": run.file_name().map(|n| n.to_string_lossy().to_string()),
+            "run": name,
+            "table": table,
             "input": scores["input"],
             "frames": scores["frames"],
             "init": scores["init"],
@@ -95,7 +112,30 @@ fn collect(runs: &Path) -> Result<Value, String> {
         Some(file) => read(Path::new(&file))?,
         None => Value::Null,
     };
+    // A run's test score again, through the graph a user runs (`--graph-check FILE`, the
+    // `eval detector --json` of detect.yaml's results with the run's encoder and detector).
+    let graph_check = match (arg("--graph-check"), arg("--graph-check-run")) {
+        (Some(file), Some(run)) => {
+            let eval = read(Path::new(&file))?;
+            let present = &eval["present_classes"];
+            let arm = arms
+                .iter()
+                .find(|a| a["run"] == run.as_str())
+                .ok_or_else(|| format!("--graph-check-run {run}: no such run with a test score"))?;
+            json!({
+                "run": run,
+                "graph": "configs/graphs/detect.yaml",
+                "samples": eval["samples"],
+                "graph_nds": present["nd_score"],
+                "graph_map": present["mean_ap"],
+                "run_nds": arm["nds"],
+                "run_map": arm["map"],
+            })
+        }
+        _ => Value::Null,
+    };
     Ok(json!({
+        "graph_check": graph_check,
         "forecast": forecast,
         "speed": speed,
         "note": "bench/scripts/downstream.sh: each arm trained on seeds 4000-4011, validated on 9200-9201, scored once on the test seeds 9600-9603; spreads are population deviations over the test scenes",
@@ -117,7 +157,7 @@ fn page(figures: &Value) -> String {
     text.push_str("<!-- generated from bench/results/downstream.json by `cargo run --release -p bevworld-bench --bin downstream -- --from bench/results/downstream.json --page bench/results/downstream.md` -->\n");
     text.push_str("| input | frames | encoder | steps | NDS | mAP | mATE | mASE | mAOE | mAVE | mAAE | minADE (m) | minFDE (m) | miss rate | const. vel. ADE / FDE (m) | agents matched |\n");
     text.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-    for arm in figures["arms"].as_array().into_iter().flatten() {
+    for arm in arms_of(figures, "export") {
         let tp = |name: &str| number(&arm["tp_errors"][name], 3);
         let spread = &arm["scene_spread"];
         let motion = &arm["motion"];
@@ -146,6 +186,8 @@ fn page(figures: &Value) -> String {
             motion["agents"],
         ));
     }
+    text.push_str(&pretrain_table(figures));
+    text.push_str(&graph_check(&figures["graph_check"]));
     text.push_str(&forecast_table(&figures["forecast"]));
     text.push_str(&targets(figures));
     text.push_str("\nThe paper's table (nuScenes val, its query head):\n\n| frames | pretrained tokenizer | NDS | mAP | minADE | minFDE |\n|---|---|---|---|---|---|\n");
@@ -160,7 +202,7 @@ fn page(figures: &Value) -> String {
             number(&row["min_fde"], 3),
         ));
     }
-    text.push_str("\nPer class AP (mean over the 0.5/1/2/4 m thresholds):\n\n| input | frames |");
+    text.push_str("\nPer class AP (mean over the 0.5/1/2/4 m thresholds):\n\n| input | frames | encoder | steps |");
     let arms: Vec<&Value> = figures["arms"].as_array().into_iter().flatten().collect();
     let classes: Vec<String> = arms
         .first()
@@ -170,12 +212,17 @@ fn page(figures: &Value) -> String {
     for class in &classes {
         text.push_str(&format!(" {class} |"));
     }
-    text.push_str(&format!("\n|---|---|{}\n", "---|".repeat(classes.len())));
+    text.push_str(&format!(
+        "\n|---|---|---|---|{}\n",
+        "---|".repeat(classes.len())
+    ));
     for arm in arms {
         text.push_str(&format!(
-            "| {} | {} |",
+            "| {} | {} | {} | {} |",
             arm["input"].as_str().unwrap_or("?"),
-            arm["frames"]
+            arm["frames"],
+            arm["init"].as_str().unwrap_or("?"),
+            arm["steps"]
         ));
         for class in &classes {
             text.push_str(&format!(" {} |", number(&arm["class_ap"][class], 3)));
@@ -183,6 +230,23 @@ fn page(figures: &Value) -> String {
         text.push('\n');
     }
     text
+}
+
+/// A run scored again through the graph: its encoder's features made by `detect.yaml`.
+fn graph_check(check: &Value) -> String {
+    if check.is_null() {
+        return String::new();
+    }
+    format!(
+        "\nThe run `{}` as a user runs it: `{}` with its `tokenizer.bpk` and `detector.bpk` on the test set's {} keyframes, its `results_nusc.json` scored by `eval detector`: NDS {}, mAP {}; the run's own test score: NDS {}, mAP {}.\n",
+        check["run"].as_str().unwrap_or("?"),
+        check["graph"].as_str().unwrap_or("?"),
+        check["samples"],
+        number(&check["graph_nds"], 4),
+        number(&check["graph_map"], 4),
+        number(&check["run_nds"], 4),
+        number(&check["run_map"], 4),
+    )
 }
 
 /// The detector on the world model's forecast latents, beside the true future latent and the
@@ -215,16 +279,75 @@ fn forecast_table(forecast: &Value) -> String {
     text
 }
 
-/// The arm of `input` with `frames`, when run.
-fn arm<'a>(figures: &'a Value, input: &str, frames: u64) -> Option<&'a Value> {
+/// The arms of one table (`export` or `pretrain`).
+fn arms_of<'a>(figures: &'a Value, table: &'a str) -> impl Iterator<Item = &'a Value> + 'a {
     figures["arms"]
-        .as_array()?
-        .iter()
-        .find(|a| a["input"] == input && a["frames"] == frames)
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter(move |a| a["table"] == table)
+}
+
+/// The frozen export's arm of `input` with `frames`, when run.
+fn arm<'a>(figures: &'a Value, input: &str, frames: u64) -> Option<&'a Value> {
+    arms_of(figures, "export").find(|a| a["input"] == input && a["frames"] == frames)
+}
+
+/// The pretraining table's arm of `init` with `frames`, when run.
+fn pretrain_arm<'a>(figures: &'a Value, init: &str, frames: u64) -> Option<&'a Value> {
+    arms_of(figures, "pretrain").find(|a| a["init"] == init && a["frames"] == frames)
+}
+
+/// The paper's comparison at our scale: the fused feature through the encoder trained with the
+/// heads from the tokenizer's weights and from scratch, and frozen, for one budget.
+fn pretrain_table(figures: &Value) -> String {
+    let arms: Vec<&Value> = arms_of(figures, "pretrain").collect();
+    if arms.is_empty() {
+        return String::new();
+    }
+    let mut text = String::from(
+        "\nThe paper's pretraining comparison at our scale (`pretrain-*` runs: the fused feature, the encoder trained with the heads from the shipped tokenizer's weights or from a fresh initialisation, or frozen; every arm the same steps):\n\n| frames | encoder | steps | NDS | mAP | mAVE | minADE (m) | minFDE (m) | miss rate |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for frames in [1, 2] {
+        for init in ["scratch", "tokenizer", "frozen"] {
+            let Some(arm) = pretrain_arm(figures, init, frames) else {
+                continue;
+            };
+            let spread = &arm["scene_spread"];
+            let motion = &arm["motion"];
+            text.push_str(&format!(
+                "| {frames} | {init} | {} | {} ± {} | {} ± {} | {} | {} ± {} | {} | {} |\n",
+                arm["steps"],
+                number(&arm["nds"], 3),
+                number(&spread["nds"], 3),
+                number(&arm["map"], 3),
+                number(&spread["map"], 3),
+                number(&arm["tp_errors"]["vel_err"], 3),
+                number(&motion["min_ade"], 2),
+                number(&spread["min_ade"], 2),
+                number(&motion["min_fde"], 2),
+                number(&motion["miss_rate"], 3),
+            ));
+        }
+    }
+    text
 }
 
 fn verdict(met: bool) -> &'static str {
     if met { "met" } else { "**missed**" }
+}
+
+/// The target "two frames beat one in mAVE and minADE" for a pair of arms, when both ran.
+fn two_frames_row(label: &str, one: Option<&Value>, two: Option<&Value>) -> Option<String> {
+    let f = |arm: Option<&Value>, pointer: &str| {
+        arm.and_then(|a| a.pointer(pointer)).and_then(Value::as_f64)
+    };
+    let (ave_1, ave_2) = (f(one, "/tp_errors/vel_err")?, f(two, "/tp_errors/vel_err")?);
+    let (ade_1, ade_2) = (f(one, "/motion/min_ade")?, f(two, "/motion/min_ade")?);
+    Some(format!(
+        "| {label}: two frames beat one in mAVE and minADE | mAVE {ave_2:.3} against {ave_1:.3}, minADE {ade_2:.2} against {ade_1:.2} m | {} |",
+        verdict(ave_2 < ave_1 && ade_2 < ade_1)
+    ))
 }
 
 /// The targets that these arms can answer, each computed from the figures.
@@ -247,18 +370,38 @@ fn targets(figures: &Value) -> String {
         }
     }
     for input in ["bev_stats", "latent", "feature"] {
-        let (one, two) = (arm(figures, input, 1), arm(figures, input, 2));
-        if let (Some(ave_1), Some(ave_2), Some(ade_1), Some(ade_2)) = (
-            f(one, "/tp_errors/vel_err"),
-            f(two, "/tp_errors/vel_err"),
-            f(one, "/motion/min_ade"),
-            f(two, "/motion/min_ade"),
+        rows.extend(two_frames_row(
+            input,
+            arm(figures, input, 1),
+            arm(figures, input, 2),
+        ));
+    }
+    for frames in [1, 2] {
+        let (with, without) = (
+            pretrain_arm(figures, "tokenizer", frames),
+            pretrain_arm(figures, "scratch", frames),
+        );
+        if let (Some(nds), Some(nds_0), Some(map), Some(map_0)) = (
+            f(with, "/nds"),
+            f(without, "/nds"),
+            f(with, "/map"),
+            f(without, "/map"),
         ) {
+            let (gain_nds, gain_map) = (nds / nds_0 - 1.0, map / map_0 - 1.0);
             rows.push(format!(
-                "| {input}: two frames beat one in mAVE and minADE | mAVE {ave_2:.3} against {ave_1:.3}, minADE {ade_2:.2} against {ade_1:.2} m | {} |",
-                verdict(ave_2 < ave_1 && ade_2 < ade_1)
+                "| pretraining pays, {frames} frame(s): tokenizer beats scratch by ≥ 10% relative NDS and mAP | NDS {nds:.3} against {nds_0:.3} ({:+.1}%), mAP {map:.3} against {map_0:.3} ({:+.1}%) | {} |",
+                100.0 * gain_nds,
+                100.0 * gain_map,
+                verdict(gain_nds >= 0.1 && gain_map >= 0.1)
             ));
         }
+    }
+    for init in ["tokenizer", "scratch"] {
+        rows.extend(two_frames_row(
+            &format!("encoder trained from {init}"),
+            pretrain_arm(figures, init, 1),
+            pretrain_arm(figures, init, 2),
+        ));
     }
     for a in figures["arms"].as_array().into_iter().flatten() {
         let m = &a["motion"];
@@ -269,10 +412,11 @@ fn targets(figures: &Value) -> String {
             m["constant_velocity_fde"].as_f64(),
         ) {
             rows.push(format!(
-                "| {} {}, {} frame(s): the motion head beats constant velocity | minADE {ade:.2} against {cv_ade:.2} m, minFDE {fde:.2} against {cv_fde:.2} m | {} |",
+                "| {} {}, {} frame(s), {} steps: the motion head beats constant velocity | minADE {ade:.2} against {cv_ade:.2} m, minFDE {fde:.2} against {cv_fde:.2} m | {} |",
                 a["init"].as_str().unwrap_or("?"),
                 a["input"].as_str().unwrap_or("?"),
                 a["frames"],
+                a["steps"],
                 verdict(ade < cv_ade && fde < cv_fde)
             ));
         }
