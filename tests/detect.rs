@@ -242,5 +242,24 @@ fn train_detector_refuses_bad_flags_and_overlapping_seed_ranges_before_any_work(
         message.contains("val.synth.seed") && message.contains("overlap"),
         "{message}"
     );
+    // A fine-tuning rate above the heads' own is refused, naming the field.
+    let config = std::fs::read_to_string("configs/models/train-detector-tiny.yaml")
+        .expect("the shipped config")
+        .replace("fine_tune_lr_fraction: 0.1", "fine_tune_lr_fraction: 1.5");
+    let too_fast = dir.path().join("too-fast.yaml");
+    std::fs::write(&too_fast, config).expect("written");
+    let output = bevworld_owned(&[
+        "train".into(),
+        "detector".into(),
+        "--config".into(),
+        path(&too_fast),
+        "--init".into(),
+        "tokenizer".into(),
+        "--out".into(),
+        out.clone(),
+    ]);
+    assert!(!output.status.success());
+    let message = text(&output);
+    assert!(message.contains("fine_tune_lr_fraction"), "{message}");
     assert!(!Path::new(&out).exists(), "nothing made for a refused run");
 }

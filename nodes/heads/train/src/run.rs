@@ -190,10 +190,12 @@ pub fn train(
         std,
     };
     if let Some(problem) = detector.input_problems(&input).first() {
-        return Err(RunError::Input(format!(
-            "{}: {problem}",
-            config.train.folder(request.input).display()
-        )));
+        let source = if request.init.trains_encoder() {
+            config.tokenizer_model.clone()
+        } else {
+            config.train.folder(request.input)
+        };
+        return Err(RunError::Input(format!("{}: {problem}", source.display())));
     }
     let autodiff = device.clone().autodiff();
     let mut trainer = DetectorTrainer::new(
@@ -253,8 +255,12 @@ pub fn train(
     // A trained encoder is written beside the detector, and the detector reads its features.
     if let (Some(tokenizer), Some(arrays)) = (trainer.shipped_encoder(), &test_arrays) {
         let path = request.out.join(ENCODER_WEIGHTS);
-        save_weights(&tokenizer, &path).map_err(|e| RunError::Input(e.to_string()))?;
-        input.weights_hash = weights_digest(&path).map_err(|e| RunError::Input(e.to_string()))?;
+        let written = |e: bevworld_tokenizer::WeightsError| RunError::Write {
+            path: path.clone(),
+            message: e.to_string(),
+        };
+        save_weights(&tokenizer, &path).map_err(written)?;
+        input.weights_hash = weights_digest(&path).map_err(written)?;
         encode_maps(&tokenizer, input.kind, &mut test_set, arrays, device)
             .map_err(|e| RunError::Train(TrainError::Encoder(e)))?;
     }
