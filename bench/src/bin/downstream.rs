@@ -81,6 +81,7 @@ fn collect(runs: &Path) -> Result<Value, String> {
             "class_ap": evaluation["detection"]["mean_dist_aps"],
             "scene_spread": {"nds": evaluation["scene_spread"][0], "map": evaluation["scene_spread"][1], "min_ade": evaluation["scene_spread"][2]},
             "motion": evaluation["motion"],
+            "seconds_per_step": seconds_per_step(&run.join("metrics.csv")),
         }));
     }
     let speed = match arg("--graph-metrics") {
@@ -144,6 +145,34 @@ fn collect(runs: &Path) -> Result<Value, String> {
             "frames": frames, "pretrain": pretrain, "nds": nds, "map": map, "min_ade": ade, "min_fde": fde,
         })).collect::<Vec<_>>(),
     }))
+}
+
+/// A run's training time per step: the elapsed seconds of its last training row in
+/// `metrics.csv` over its step (validation included; a resumed run's clock restarts, so its
+/// figure is of the part after the resume). `null` without a log.
+fn seconds_per_step(log: &Path) -> Value {
+    let Ok(text) = std::fs::read_to_string(log) else {
+        return Value::Null;
+    };
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let column = |name: &str| header.iter().position(|c| *c == name);
+    let (Some(step), Some(phase), Some(elapsed)) =
+        (column("step"), column("phase"), column("elapsed_s"))
+    else {
+        return Value::Null;
+    };
+    lines
+        .rev()
+        .map(|line| line.split(',').collect::<Vec<_>>())
+        .filter(|cells| cells.get(phase) == Some(&"train"))
+        .filter_map(|cells| {
+            let step: f64 = cells.get(step)?.parse().ok()?;
+            let elapsed: f64 = cells.get(elapsed)?.parse().ok()?;
+            (step > 0.0).then(|| elapsed / step)
+        })
+        .next()
+        .map_or(Value::Null, Value::from)
 }
 
 fn number(value: &Value, decimals: usize) -> String {
@@ -306,7 +335,7 @@ fn pretrain_table(figures: &Value) -> String {
         return String::new();
     }
     let mut text = String::from(
-        "\nThe paper's pretraining comparison at our scale (`pretrain-*` runs: the fused feature, the encoder trained with the heads from the shipped tokenizer's weights or from a fresh initialisation, or frozen; every arm the same steps):\n\n| frames | encoder | steps | NDS | mAP | mAVE | minADE (m) | minFDE (m) | miss rate |\n|---|---|---|---|---|---|---|---|---|\n",
+        "\nThe paper's pretraining comparison at our scale (`pretrain-*` runs: the fused feature, the encoder trained with the heads from the shipped tokenizer's weights or from a fresh initialisation, or frozen; every arm the same steps):\n\n| frames | encoder | steps | s per step | NDS | mAP | mAVE | minADE (m) | minFDE (m) | miss rate |\n|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for frames in [1, 2] {
         for init in ["scratch", "tokenizer", "frozen"] {
@@ -316,8 +345,9 @@ fn pretrain_table(figures: &Value) -> String {
             let spread = &arm["scene_spread"];
             let motion = &arm["motion"];
             text.push_str(&format!(
-                "| {frames} | {init} | {} | {} ± {} | {} ± {} | {} | {} ± {} | {} | {} |\n",
+                "| {frames} | {init} | {} | {} | {} ± {} | {} ± {} | {} | {} ± {} | {} | {} |\n",
                 arm["steps"],
+                number(&arm["seconds_per_step"], 2),
                 number(&arm["nds"], 3),
                 number(&spread["nds"], 3),
                 number(&arm["map"], 3),
