@@ -65,7 +65,8 @@ check="$RUNS/pretrain-tokenizer-feature-2f"
 "$BIN/downstream" --runs "$RUNS" --graph-metrics "$RUNS/detect-metrics.json" \
   --forecast bench/results/forecast-detection.json \
   --graph-check "$RUNS/graph-check.json" --graph-check-run pretrain-tokenizer-feature-2f \
-  --json bench/results/downstream.json --page bench/results/downstream.md
+  --json bench/results/downstream.json --page bench/results/downstream.md \
+  --curves bench/results/downstream-curves.png
 # The official devkit on one arm's test file, where it is installed.
 PYTHON=${PYTHON:-$HOME/.cache/bevworld/devkit-venv/bin/python}
 if [[ -x "$PYTHON" ]]; then

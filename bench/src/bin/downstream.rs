@@ -13,9 +13,13 @@
 //! `detect` node's time per frame in the graph (p50, p99) and the encoder's beside it.
 //!   cargo run --release -p bevworld-bench --bin downstream -- --from bench/results/downstream.json \
 //!     --page bench/results/downstream.md     (the page again from the figures)
+//!
+//! `--curves FILE.png` draws every arm's validation NDS against its steps.
 
 use std::path::{Path, PathBuf};
 
+use bevworld_plot::{Panel, Series, panels_png};
+use bevworld_training::metrics_log::read_series;
 use serde_json::{Value, json};
 
 /// The paper's "Comparison of whether use pretrained tokenizer" (nuScenes val): frames,
@@ -82,6 +86,7 @@ fn collect(runs: &Path) -> Result<Value, String> {
             "scene_spread": {"nds": evaluation["scene_spread"][0], "map": evaluation["scene_spread"][1], "min_ade": evaluation["scene_spread"][2]},
             "motion": evaluation["motion"],
             "seconds_per_step": seconds_per_step(&run.join("metrics.csv")),
+            "validation_nds": validation_nds(&run.join("metrics.csv")),
         }));
     }
     let speed = match arg("--graph-metrics") {
@@ -151,28 +156,66 @@ fn collect(runs: &Path) -> Result<Value, String> {
 /// `metrics.csv` over its step (validation included; a resumed run's clock restarts, so its
 /// figure is of the part after the resume). `null` without a log.
 fn seconds_per_step(log: &Path) -> Value {
-    let Ok(text) = std::fs::read_to_string(log) else {
-        return Value::Null;
-    };
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let column = |name: &str| header.iter().position(|c| *c == name);
-    let (Some(step), Some(phase), Some(elapsed)) =
-        (column("step"), column("phase"), column("elapsed_s"))
-    else {
-        return Value::Null;
-    };
-    lines
-        .rev()
-        .map(|line| line.split(',').collect::<Vec<_>>())
-        .filter(|cells| cells.get(phase) == Some(&"train"))
-        .filter_map(|cells| {
-            let step: f64 = cells.get(step)?.parse().ok()?;
-            let elapsed: f64 = cells.get(elapsed)?.parse().ok()?;
-            (step > 0.0).then(|| elapsed / step)
+    read_series(log, "train", "elapsed_s")
+        .ok()
+        .and_then(|rows| rows.last().copied())
+        .filter(|(step, _)| *step > 0.0)
+        .map_or(Value::Null, |(step, elapsed)| Value::from(elapsed / step))
+}
+
+/// A run's validation NDS at each validation step, `[[step, nds], …]`.
+fn validation_nds(log: &Path) -> Value {
+    read_series(log, "val", "nds").map_or(Value::Null, |rows| {
+        Value::from(
+            rows.iter()
+                .map(|&(step, nds)| vec![step, nds])
+                .collect::<Vec<_>>(),
+        )
+    })
+}
+
+/// One arm's curve: its label and `(step, NDS)` points.
+type Line = (String, Vec<(f64, f64)>);
+
+/// The validation curves of both tables (`--curves FILE.png`): NDS against steps, one panel
+/// per table and number of frames, one line per arm.
+fn curves(figures: &Value, path: &Path) -> Result<(), String> {
+    let mut owned: Vec<(String, Vec<Line>)> = Vec::new();
+    for (table, name) in [("export", "frozen exports"), ("pretrain", "pretraining")] {
+        for frames in [1u64, 2] {
+            let lines = arms_of(figures, table)
+                .filter(|a| a["frames"] == frames)
+                .map(|a| {
+                    let label = format!(
+                        "{} {}",
+                        a["init"].as_str().unwrap_or("?"),
+                        a["input"].as_str().unwrap_or("?")
+                    );
+                    let points = a["validation_nds"]
+                        .as_array()
+                        .into_iter()
+                        .flatten()
+                        .filter_map(|p| Some((p[0].as_f64()?, p[1].as_f64()?)))
+                        .collect();
+                    (label, points)
+                })
+                .collect();
+            owned.push((format!("validation NDS: {name}, {frames} frame(s)"), lines));
+        }
+    }
+    let panels: Vec<Panel> = owned
+        .iter()
+        .map(|(title, lines)| Panel {
+            title,
+            x_label: "step",
+            log_y: false,
+            series: lines
+                .iter()
+                .map(|(label, points)| Series { label, points })
+                .collect(),
         })
-        .next()
-        .map_or(Value::Null, Value::from)
+        .collect();
+    panels_png(path, &panels).map_err(|e| format!("{}: {e}", path.display()))
 }
 
 fn number(value: &Value, decimals: usize) -> String {
@@ -493,7 +536,7 @@ fn main() {
         (Some(runs), None) => collect(Path::new(&runs)),
         (None, Some(from)) => read(Path::new(&from)),
         _ => Err(
-            "usage: downstream (--runs DIR | --from FILE.json) [--json OUT.json] [--page OUT.md]"
+            "usage: downstream (--runs DIR | --from FILE.json) [--json OUT.json] [--page OUT.md] [--curves OUT.png]"
                 .into(),
         ),
     };
@@ -510,6 +553,12 @@ fn main() {
             eprintln!("{path}: {error}");
             std::process::exit(1);
         }
+    }
+    if let Some(path) = arg("--curves")
+        && let Err(error) = curves(&figures, Path::new(&path))
+    {
+        eprintln!("{error}");
+        std::process::exit(1);
     }
     let tables = page(&figures);
     match arg("--page") {
