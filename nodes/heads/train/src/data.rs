@@ -32,6 +32,8 @@ pub enum DataError {
     Invalid { path: PathBuf, message: String },
     #[error("{path}: {message}")]
     Dataset { path: PathBuf, message: String },
+    #[error("keyframe {sample}: {message}")]
+    Keyframe { sample: String, message: String },
 }
 
 /// One keyframe.

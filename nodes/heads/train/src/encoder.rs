@@ -99,13 +99,13 @@ pub fn encode_maps(
         let values = product(tokenizer, frame_arrays, kind, device)
             .into_data()
             .try_to_vec::<f32>()
-            .map_err(|error| DataError::Invalid {
-                path: Path::new(&frame.sample_token).to_path_buf(),
+            .map_err(|error| DataError::Keyframe {
+                sample: frame.sample_token.clone(),
                 message: format!("reading the encoder's map back: {error:?}"),
             })?;
         if let Some(bad) = values.iter().position(|v| !v.is_finite()) {
-            return Err(DataError::Invalid {
-                path: Path::new(&frame.sample_token).to_path_buf(),
+            return Err(DataError::Keyframe {
+                sample: frame.sample_token.clone(),
                 message: format!("the encoder's map has a non-finite value at {bad}"),
             });
         }

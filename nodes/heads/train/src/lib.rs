@@ -1,7 +1,8 @@
 //! Training the detection and motion heads (`bevworld_heads`) on exported BEV features: the
 //! keyframes of annotated sets with their maps and agents (`data.rs`), the loss on batches
 //! and validation with the nuScenes detection metrics and minADE/minFDE (`trainer.rs`,
-//! `evaluate.rs`), and the whole run with its test score (`run.rs`).
+//! `evaluate.rs`), the tokenizer's encoder trained with the heads for the paper's pretraining
+//! arms (`encoder.rs`), and the whole run with its test score (`run.rs`).
 
 // Libraries return errors; a panic belongs to a broken invariant, said with `expect`.
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
