@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use bevworld_heads::DetectorConfig;
-use bevworld_heads_train::{DataError, load_set};
+use bevworld_heads_train::{DataError, TrainDetectorConfig, load_set};
 use bevworld_sensors::synth::{SynthConfig, generate};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_sinks::npy::npy_f32;
@@ -88,6 +88,36 @@ pub fn synthetic_set(dir: &Path) {
         ..Default::default()
     };
     generate(dir, &config, |_, _| {}).expect("synthetic set");
+}
+
+/// A training config over three tiny synthetic sets under `dir`, `batch` keyframes per step in
+/// micro-batches of `micro_batch`.
+pub fn train_config(dir: &Path, batch: usize, micro_batch: usize) -> TrainDetectorConfig {
+    let text = format!(
+        "
+model: unused.yaml
+tokenizer_model: unused.yaml
+tokenizer_weights: unused.bpk
+train: {{synth: {{dir: {d}/a, seed: 1, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fa}}
+val: {{synth: {{dir: {d}/b, seed: 2, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fb}}
+test: {{synth: {{dir: {d}/c, seed: 3, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fc}}
+seed: 5
+steps: 30
+batch: {batch}
+micro_batch: {micro_batch}
+optimizer: {{lr: 2.0e-3, beta_1: 0.9, beta_2: 0.999, epsilon: 1.0e-8, weight_decay: 0.01, warmup_steps: 2, final_lr_fraction: 0.1, grad_clip_norm: 10.0}}
+fine_tune_lr_fraction: 0.1
+loss: {{heatmap: 1.0, boxes: 0.25, motion: 0.1}}
+validate_every: 100
+checkpoint_every: 100
+",
+        d = dir.display(),
+        batch = batch,
+        micro_batch = micro_batch,
+    );
+    let path = dir.join("train.yaml");
+    std::fs::write(&path, text).expect("written");
+    TrainDetectorConfig::from_yaml_file(&path).expect("valid config")
 }
 
 #[test]

@@ -7,13 +7,13 @@ use std::path::{Path, PathBuf};
 use bevworld_heads::{InputKind, InputSpec};
 use bevworld_heads_train::encoder::{encode_maps, encoded_batch, load_encoder_set};
 use bevworld_heads_train::trainer::EncoderInLoop;
-use bevworld_heads_train::{DetectionSet, DetectorTrainer, TrainDetectorConfig};
+use bevworld_heads_train::{DetectionSet, DetectorTrainer};
 use bevworld_tokenizer::{EncoderArrays, FrameInputs, Tokenizer, TokenizerConfig};
 use bevworld_training::Trainee;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 
-use crate::data::{config, synthetic_set};
+use crate::data::{config, synthetic_set, train_config};
 
 fn tokenizer_config() -> TokenizerConfig {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -131,35 +131,9 @@ fn a_training_input_is_the_map_inference_makes_standardised_and_warped() {
     assert!(worst < 1e-3, "largest difference {worst}");
 }
 
-fn train_config(dir: &Path) -> TrainDetectorConfig {
-    let text = format!(
-        "
-model: unused.yaml
-tokenizer_model: unused.yaml
-tokenizer_weights: unused.bpk
-train: {{synth: {{dir: {d}/a, seed: 1, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fa}}
-val: {{synth: {{dir: {d}/b, seed: 2, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fb}}
-test: {{synth: {{dir: {d}/c, seed: 3, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fc}}
-seed: 5
-steps: 30
-batch: 2
-micro_batch: 1
-optimizer: {{lr: 2.0e-3, beta_1: 0.9, beta_2: 0.999, epsilon: 1.0e-8, weight_decay: 0.01, warmup_steps: 2, final_lr_fraction: 0.1, grad_clip_norm: 10.0}}
-fine_tune_lr_fraction: 0.1
-loss: {{heatmap: 1.0, boxes: 0.25, motion: 0.1}}
-validate_every: 100
-checkpoint_every: 100
-",
-        d = dir.display()
-    );
-    let path = dir.join("train.yaml");
-    std::fs::write(&path, text).expect("written");
-    TrainDetectorConfig::from_yaml_file(&path).expect("valid config")
-}
-
 fn trainer(dir: &Path, fixture: &Fixture, threads: usize) -> DetectorTrainer {
     let autodiff = Device::flex().autodiff();
-    let train = train_config(dir);
+    let train = train_config(dir, 2, 1);
     let encoder = EncoderInLoop::new(
         fixture.tokenizer_config.clone(),
         fixture

@@ -2,11 +2,11 @@
 //! is split over threads, a resumed run continues bit for bit, and steps lower the loss.
 
 use bevworld_heads::{InputKind, InputSpec};
-use bevworld_heads_train::{DetectionSet, DetectorTrainer, TrainDetectorConfig, load_set};
+use bevworld_heads_train::{DetectionSet, DetectorTrainer, load_set};
 use bevworld_training::Trainee;
 use burn::prelude::*;
 
-use crate::data::{config, export, synthetic_set};
+use crate::data::{config, export, synthetic_set, train_config};
 
 /// The synthetic set and its hand-written export, read once per test.
 fn set(dir: &std::path::Path) -> DetectionSet {
@@ -17,32 +17,6 @@ fn set(dir: &std::path::Path) -> DetectionSet {
     // how big agents tend to be, which is enough to exercise the machinery.
     export(&data, &features, |_, _| {});
     load_set(&features, &data, &config()).expect("loads")
-}
-
-fn train_config(dir: &std::path::Path) -> TrainDetectorConfig {
-    let text = format!(
-        "
-model: unused.yaml
-tokenizer_model: unused.yaml
-tokenizer_weights: unused.bpk
-train: {{synth: {{dir: {d}/a, seed: 1, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fa}}
-val: {{synth: {{dir: {d}/b, seed: 2, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fb}}
-test: {{synth: {{dir: {d}/c, seed: 3, scenes: 1, seconds: 3, camera_size: 64x36}}, features: {d}/fc}}
-seed: 5
-steps: 30
-batch: 4
-micro_batch: 2
-optimizer: {{lr: 2.0e-3, beta_1: 0.9, beta_2: 0.999, epsilon: 1.0e-8, weight_decay: 0.01, warmup_steps: 2, final_lr_fraction: 0.1, grad_clip_norm: 10.0}}
-fine_tune_lr_fraction: 0.1
-loss: {{heatmap: 1.0, boxes: 0.25, motion: 0.1}}
-validate_every: 100
-checkpoint_every: 100
-",
-        d = dir.display()
-    );
-    let path = dir.join("train.yaml");
-    std::fs::write(&path, text).expect("written");
-    TrainDetectorConfig::from_yaml_file(&path).expect("valid config")
 }
 
 fn trainer(dir: &std::path::Path, set: &DetectionSet, threads: usize) -> DetectorTrainer {
@@ -58,7 +32,7 @@ fn trainer(dir: &std::path::Path, set: &DetectionSet, threads: usize) -> Detecto
         std,
     };
     DetectorTrainer::new(
-        train_config(dir),
+        train_config(dir, 4, 2),
         config(),
         input,
         set.clone(),
