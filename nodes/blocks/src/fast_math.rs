@@ -58,7 +58,8 @@ pub fn exp(x: f32) -> f32 {
     let clamped = x.clamp(-87.0, 88.0);
     // `clamp` keeps NaN, and NaN must not reach the integer conversion below as garbage.
     let x = if clamped.is_nan() { 0.0 } else { clamped };
-    let n = (x * LOG2_E + ROUND) - ROUND;
+    let shifted = x * LOG2_E + ROUND;
+    let n = shifted - ROUND;
     let r = x - n * LN2_HI - n * LN2_LO;
     let mut p = 1.987_569_1e-4f32;
     p = p * r + 1.398_199_9e-3;
@@ -67,7 +68,15 @@ pub fn exp(x: f32) -> f32 {
     p = p * r + 1.666_666_5e-1;
     p = p * r + 0.5;
     let e_r = p * r * r + r + 1.0;
-    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    // 2ⁿ from the bits of `shifted`, whose mantissa holds n + 2²² as an integer (its ulp is 1):
+    // `n as i32` is a saturating conversion, and its clamping to i32's range kept the whole
+    // function four times slower on AVX-512 than this integer subtraction, which gives the same
+    // n for every |n| < 2²² (here |n| ≤ 127).
+    let n_biased = shifted
+        .to_bits()
+        .wrapping_sub(ROUND.to_bits())
+        .wrapping_add(127);
+    let scale = f32::from_bits(n_biased << 23);
     let value = e_r * scale;
     let value = if clamped <= -87.0 { 0.0 } else { value };
     let value = if clamped >= 88.0 {
