@@ -7,20 +7,27 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
 use crate::activation::softmax_last;
+use crate::attention_on_host::{HeadBias, HeadShapes, attention_on_host};
+use crate::host::{checked_values, runs_on_host};
+use crate::linear_on_host::linear;
 
 /// Additive attention bias for token pairs that must not attend to each other. Large enough
 /// that `exp` gives exactly 0 in f32, finite so that no backward pass ever sees `inf - inf`.
 pub const MASKED: f32 = -1e9;
 
 /// `softmax(q kᵀ / √d + bias) v`, the bias broadcast over the batch and head axes where it has
-/// size 1 there.
-// q, k, v: [B, H, N, d], bias: [B | 1, H | 1, N, N] -> [B, H, N, d]
+/// size 1 there. For inference on the CPU, one kernel per head (`attention_on_host`); under
+/// autodiff and on other devices, burn's ops with their backward passes.
+// q: [B, H, Nq, d], k, v: [B, H, Nk, d], bias: [B | 1, H | 1, Nq, Nk] -> [B, H, Nq, d]
 pub fn scaled_dot_product(
     q: Tensor<4>,
     k: Tensor<4>,
     v: Tensor<4>,
     bias: Option<Tensor<4>>,
 ) -> Tensor<4> {
+    if runs_on_host(&q) && runs_on_host(&k) && runs_on_host(&v) {
+        return scaled_dot_product_on_host(q, k, v, bias);
+    }
     let logits = attention_logits(q, k);
     attend(
         match bias {
@@ -29,6 +36,48 @@ pub fn scaled_dot_product(
         },
         v,
     )
+}
+
+/// `scaled_dot_product` by `attention_on_host`: the tensors' values, one kernel per head.
+// q: [B, H, Nq, d], k, v: [B, H, Nk, d], bias: [B | 1, H | 1, Nq, Nk] -> [B, H, Nq, d]
+fn scaled_dot_product_on_host(
+    q: Tensor<4>,
+    k: Tensor<4>,
+    v: Tensor<4>,
+    bias: Option<Tensor<4>>,
+) -> Tensor<4> {
+    let device = q.device();
+    let [batch, heads, queries, dim] = q.dims();
+    let keys = k.dims()[2];
+    // The bias keeps its size-1 batch and head axes: the kernel broadcasts them.
+    let bias = bias.map(|b| {
+        let [bias_batch, bias_heads, ..] = b.dims();
+        let values = b
+            .expand([bias_batch, bias_heads, queries, keys])
+            .into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .expect("data converted to f32 reads as f32");
+        (values, bias_batch, bias_heads)
+    });
+    let out = attention_on_host(
+        &checked_values(q),
+        &checked_values(k),
+        &checked_values(v),
+        bias.as_ref().map(|(values, batch, heads)| HeadBias {
+            values,
+            batch: *batch,
+            heads: *heads,
+        }),
+        HeadShapes {
+            batch,
+            heads,
+            queries,
+            keys,
+            dim,
+        },
+    );
+    Tensor::from_data(TensorData::new(out, [batch, heads, queries, dim]), &device)
 }
 
 /// `q kᵀ / √d`, for callers that add a bias of their own layout before `attend`.
@@ -50,8 +99,7 @@ pub fn attend(logits: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
 pub fn split_heads(qkv: &Linear, x: Tensor<3>, heads: usize) -> [Tensor<4>; 3] {
     let [batch, tokens, dim] = x.dims();
     let head_dim = dim / heads;
-    let qkv = qkv
-        .forward(x)
+    let qkv = linear(qkv, x)
         .reshape([batch, tokens, 3, heads, head_dim])
         .permute([2, 0, 3, 1, 4]); // [3, B, H, N, d]
     let part = |i: usize| {
@@ -66,7 +114,8 @@ pub fn split_heads(qkv: &Linear, x: Tensor<3>, heads: usize) -> [Tensor<4>; 3] {
 // out: [B, H, N, d] -> [B, N, H·d]
 pub fn merge_heads(proj: &Linear, out: Tensor<4>) -> Tensor<3> {
     let [batch, heads, tokens, head_dim] = out.dims();
-    proj.forward(
+    linear(
+        proj,
         out.swap_dims(1, 2)
             .reshape([batch, tokens, heads * head_dim]),
     )

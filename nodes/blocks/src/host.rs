@@ -37,6 +37,15 @@ pub fn into_inference_values<const D: usize>(tensor: Tensor<D>) -> Result<Vec<f3
         .expect("an f32 tensor's data reads as f32"))
 }
 
+/// `into_inference_values` of a tensor the caller has held to `runs_on_host`.
+///
+/// # Panics
+/// When `tensor` is not an f32 CPU inference tensor: check `runs_on_host` first.
+pub fn checked_values<const D: usize>(tensor: Tensor<D>) -> Vec<f32> {
+    into_inference_values(tensor)
+        .unwrap_or_else(|_| panic!("checked by runs_on_host: an f32 CPU inference tensor"))
+}
+
 /// Runs `kernel` compiled for the widest vector instructions this CPU has (AVX-512, AVX2 + FMA,
 /// NEON), detected at run time: the binary is built for the baseline x86-64 (SSE2), where our
 /// branch-free math (`fast_math`) vectorises only 4 lanes wide and without FMA.
@@ -87,4 +96,73 @@ pub fn map_in_place<F: Fn(f32) -> f32>(values: &mut [f32], f: F) {
         }
     }
     vectorized(Map { values, f });
+}
+
+/// The right-hand factor of `matrix_product`, row-major: `AsIs(b)` is `[k, n]`; `Transposed(b)`
+/// is `[n, k]`, multiplied as its transpose without a transposed copy.
+#[derive(Clone, Copy, Debug)]
+pub enum Right<'a> {
+    AsIs(&'a [f32]),
+    Transposed(&'a [f32]),
+}
+
+/// Where `matrix_product` runs: on the calling thread (the caller spreads its independent
+/// products over the cores), or on every core of rayon's pool, gemm splitting the one product
+/// as burn's CPU backend has it do (the packed operands shared, not packed once per core).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cores {
+    One,
+    All,
+}
+
+/// `dst = scale · a b`, or `dst += scale · a b` when `accumulate`, for `a` `[m, k]` and `dst`
+/// `[m, n]`, row-major, by `gemm` (the micro-kernels burn's CPU backend calls).
+///
+/// # Panics
+/// When a slice's length is not what `[m, n, k]` says.
+#[allow(unsafe_code)] // gemm's interface is raw pointers and strides
+pub fn matrix_product(
+    dst: &mut [f32],
+    a: &[f32],
+    b: Right<'_>,
+    [m, n, k]: [usize; 3],
+    scale: f32,
+    accumulate: bool,
+    cores: Cores,
+) {
+    let (b, b_column_stride, b_row_stride) = match b {
+        Right::AsIs(b) => (b, 1, n),
+        Right::Transposed(b) => (b, k, 1),
+    };
+    assert_eq!(dst.len(), m * n, "the product's [m, n]");
+    assert_eq!(a.len(), m * k, "the left factor's [m, k]");
+    assert_eq!(b.len(), k * n, "the right factor's [k, n]");
+    // SAFETY: with the lengths checked above, every element gemm reads or writes lies in its
+    // slice: a[i·k + l], b[l·row + j·column] and dst[i·n + j] for i < m, j < n, l < k.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            accumulate,
+            a.as_ptr(),
+            1,
+            k as isize,
+            b.as_ptr(),
+            b_column_stride as isize,
+            b_row_stride as isize,
+            if accumulate { 1.0 } else { 0.0 },
+            scale,
+            false,
+            false,
+            false,
+            match cores {
+                Cores::One => gemm::Parallelism::None,
+                Cores::All => gemm::Parallelism::Rayon(0),
+            },
+        );
+    }
 }

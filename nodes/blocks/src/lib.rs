@@ -11,18 +11,23 @@
 pub mod activation;
 pub mod adaln;
 pub mod attention;
+pub mod attention_on_host;
 pub mod cache;
 pub mod embedding;
 pub mod fast_math;
 pub mod host;
 pub mod init;
+pub mod linear_on_host;
 pub mod mlp;
 pub mod module_file;
 pub mod swin;
 pub mod torch_weights;
 
 pub use activation::gelu;
-pub use adaln::{AdaLnModulation, AdaLnModulationConfig, layer_norm, modulate};
+pub use adaln::{
+    AdaLnModulation, AdaLnModulationConfig, gated_residual, layer_norm, modulate,
+    modulated_layer_norm,
+};
 pub use attention::{MASKED, MultiHeadAttention, MultiHeadAttentionConfig, causal_mask};
 pub use cache::TensorCache;
 pub use embedding::{sinusoidal_1d, sinusoidal_2d, timestep_embedding};

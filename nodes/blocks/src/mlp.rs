@@ -4,13 +4,13 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
-use crate::activation::gelu;
+use crate::linear_on_host::{linear, linear_gelu};
 
 /// `fc2(GELU(fc1(x)))`, the one definition Swin blocks (whose weights name the layers `fc1`
 /// and `fc2` directly) and `Mlp` share.
 // x: [..., C] -> [..., C_out]
 pub fn gelu_mlp<const D: usize>(fc1: &Linear, fc2: &Linear, x: Tensor<D>) -> Tensor<D> {
-    fc2.forward(gelu(fc1.forward(x)))
+    linear(fc2, linear_gelu(fc1, x))
 }
 
 #[derive(Config, Debug)]

@@ -6,11 +6,13 @@ use bevworld_blocks::init::{random_normal, random_tensor};
 use bevworld_blocks::swin::{SwinBlockConfig, SwinConfig};
 use bevworld_blocks::{
     AdaLnModulationConfig, ModuleFileError, MultiHeadAttentionConfig, TensorCache, causal_mask,
-    check_file, load_module, modulate, save_module, seeded_init, sinusoidal_1d, sinusoidal_2d,
-    timestep_embedding,
+    check_file, gated_residual, layer_norm, load_module, modulate, modulated_layer_norm,
+    save_module, seeded_init, sinusoidal_1d, sinusoidal_2d, timestep_embedding,
 };
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
 use burn::prelude::*;
+
+use crate::compare::largest_difference;
 
 fn device() -> Device {
     Device::flex()
@@ -296,6 +298,63 @@ fn a_header_announcing_more_metadata_than_the_file_holds_is_refused_before_readi
         assert!(
             text.contains("bitflip.bpk") && text.contains("announces"),
             "{text}"
+        );
+    }
+}
+
+#[test]
+fn the_modulated_norm_agrees_with_its_composition_and_a_hand_computation() {
+    // The world model's layout: [B, F, L, C] with one shift and scale per frame, [B, F, 1, C];
+    // 40 channels, so the lanes' tail is used too.
+    let host = Device::flex();
+    let x = random_normal(8, [2, 3, 5, 40], 1.5, 2.0, &host);
+    let shift = random_normal(9, [2, 3, 1, 40], 0.0, 1.0, &host);
+    let scale = random_normal(10, [2, 3, 1, 40], 0.0, 1.0, &host);
+    let fused = values(modulated_layer_norm(
+        x.clone(),
+        shift.clone(),
+        scale.clone(),
+        1e-6,
+    ));
+    let autodiff = host.clone().autodiff();
+    let to = |t: Tensor<4>| Tensor::<4>::from_data(t.into_data(), &autodiff);
+    let composed = values(modulate(layer_norm(to(x), 1e-6), to(shift), to(scale)));
+    let worst = largest_difference(&fused, &composed);
+    assert!(worst < 1e-5, "{worst}");
+    // By hand: the row (1, 2, 3, 4) has mean 2.5 and biased variance 1.25; with scale 1 and
+    // shift 0.5 each value is 2 · (v − 2.5) / √1.25 + 0.5.
+    let row = Tensor::<4>::from_data([[[[1.0f32, 2.0, 3.0, 4.0]]]], &host);
+    let out = values(modulated_layer_norm(
+        row,
+        Tensor::full([1, 1, 1, 4], 0.5, &host),
+        Tensor::full([1, 1, 1, 4], 1.0, &host),
+        0.0,
+    ));
+    for (v, o) in [1.0f32, 2.0, 3.0, 4.0].iter().zip(out) {
+        let expected = 2.0 * (v - 2.5) / 1.25f32.sqrt() + 0.5;
+        assert!((o - expected).abs() < 1e-6, "{o} against {expected}");
+    }
+}
+
+#[test]
+fn the_gated_residual_agrees_with_its_composition() {
+    let host = Device::flex();
+    let x = random_normal(11, [2, 3, 5, 40], 0.0, 1.0, &host);
+    let gate = random_normal(12, [2, 3, 1, 40], 0.0, 1.0, &host);
+    let h = random_normal(13, [2, 3, 5, 40], 0.0, 1.0, &host);
+    let fused = values(gated_residual(x.clone(), gate.clone(), h.clone()));
+    let autodiff = host.autodiff();
+    let to = |t: Tensor<4>| Tensor::<4>::from_data(t.into_data(), &autodiff);
+    let composed = values(gated_residual(
+        to(x.clone()),
+        to(gate.clone()),
+        to(h.clone()),
+    ));
+    let by_hand = values(x + gate * h);
+    for (i, ((a, b), c)) in fused.iter().zip(&composed).zip(&by_hand).enumerate() {
+        assert!(
+            (a - b).abs() < 1e-6 && (a - c).abs() < 1e-6,
+            "{i}: {a} {b} {c}"
         );
     }
 }

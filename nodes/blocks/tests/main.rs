@@ -4,9 +4,12 @@
 //! 500 MB apiece, for the same tests.
 
 mod activation;
+mod attention_on_host;
 mod blocks;
+mod compare;
 mod fast_math;
 mod host_attention;
+mod linear_on_host;
 mod reference;
 mod softmax;
 mod swin;

@@ -11,7 +11,7 @@
 
 use bevworld_blocks::{
     AdaLnModulation, AdaLnModulationConfig, Mlp, MlpConfig, MultiHeadAttention,
-    MultiHeadAttentionConfig, layer_norm, modulate,
+    MultiHeadAttentionConfig, gated_residual, modulated_layer_norm,
 };
 use burn::prelude::*;
 
@@ -78,11 +78,7 @@ impl SpatialTemporalBlock {
             .collect();
 
         // 1. Causal temporal attention: one sequence of frames per spatial token.
-        let h = modulate(
-            layer_norm(x.clone(), NORM_EPSILON),
-            m[0].clone(),
-            m[1].clone(),
-        );
+        let h = modulated_layer_norm(x.clone(), m[0].clone(), m[1].clone(), NORM_EPSILON);
         let h = h
             .swap_dims(1, 2) // [B, L, F, D]
             .reshape([batch * tokens, frames, width]);
@@ -90,27 +86,22 @@ impl SpatialTemporalBlock {
             .temporal
             .forward_after(h, prefix, Some(mask.unsqueeze::<4>())); // mask: [1, 1, F, P + F]
         let h = h.reshape([batch, tokens, frames, width]).swap_dims(1, 2); // [B, F, L, D]
-        let x = x + m[2].clone() * h;
+        let x = gated_residual(x, m[2].clone(), h);
 
         // 2. Spatial attention within each frame.
-        let h = modulate(
-            layer_norm(x.clone(), NORM_EPSILON),
-            m[3].clone(),
-            m[4].clone(),
-        )
-        .reshape([batch * frames, tokens, width]);
+        let h = modulated_layer_norm(x.clone(), m[3].clone(), m[4].clone(), NORM_EPSILON)
+            .reshape([batch * frames, tokens, width]);
         let h = self
             .spatial
             .forward(h, None)
             .reshape([batch, frames, tokens, width]);
-        let x = x + m[5].clone() * h;
+        let x = gated_residual(x, m[5].clone(), h);
 
         // 3. The MLP.
-        let h = modulate(
-            layer_norm(x.clone(), NORM_EPSILON),
-            m[6].clone(),
-            m[7].clone(),
-        );
-        (x + m[8].clone() * self.mlp.forward(h), keys_values)
+        let h = modulated_layer_norm(x.clone(), m[6].clone(), m[7].clone(), NORM_EPSILON);
+        (
+            gated_residual(x, m[8].clone(), self.mlp.forward(h)),
+            keys_values,
+        )
     }
 }

@@ -14,8 +14,9 @@
 //! - A final adaLN-modulated linear layer, zero at initialisation, maps the future frames'
 //!   tokens back to patches: the prediction (ε, v or x₀, `diffusion.target`) for them only.
 
+use bevworld_blocks::linear_on_host::linear;
 use bevworld_blocks::{
-    AdaLnModulation, AdaLnModulationConfig, TensorCache, causal_mask, layer_norm, modulate,
+    AdaLnModulation, AdaLnModulationConfig, TensorCache, causal_mask, modulated_layer_norm,
     sinusoidal_1d, sinusoidal_2d,
 };
 use burn::nn::{Initializer, Linear, LinearConfig};
@@ -115,13 +116,13 @@ impl WorldModel {
             sinusoidal_2d(rows, columns, width, &device)
         }); // [L, D]
         let time = sinusoidal_1d(first + frames, width, &device).narrow(0, first, frames); // [F, D]
-        let x = self.patch_embed.forward(patchify(latents, self.patch)) // [B, F, L, D]
+        let x = linear(&self.patch_embed, patchify(latents, self.patch)) // [B, F, L, D]
             + space.reshape([1, 1, tokens, width])
             + time.reshape([1, frames, 1, width]);
         match (&self.warp_embed, warped) {
             (Some(warp_embed), Some(warped)) => {
                 let [batch, future, _, _, _] = warped.dims();
-                let w = warp_embed.forward(patchify(warped, self.patch)); // [B, N, L, D]
+                let w = linear(warp_embed, patchify(warped, self.patch)); // [B, N, L, D]
                 let w = if future < frames {
                     let clean = Tensor::zeros([batch, frames - future, tokens, width], &device);
                     Tensor::cat(vec![clean, w], 1)
@@ -232,8 +233,8 @@ impl WorldModel {
             .into_iter()
             .map(|v| v.unsqueeze_dim(2))
             .collect();
-        let h = modulate(layer_norm(x, NORM_EPSILON), m[0].clone(), m[1].clone());
-        unpatchify(self.head.forward(h), self.patch, self.channels, self.size)
+        let h = modulated_layer_norm(x, m[0].clone(), m[1].clone(), NORM_EPSILON);
+        unpatchify(linear(&self.head, h), self.patch, self.channels, self.size)
     }
 
     /// The blocks, for tests of their initial state.

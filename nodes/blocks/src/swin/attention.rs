@@ -9,6 +9,7 @@ use super::window::relative_position_index;
 use crate::attention::{attend, attention_logits, merge_heads, split_heads};
 use crate::cache::TensorCache;
 use crate::host::{inference_values, into_inference_values, runs_on_host};
+use crate::linear_on_host::linear;
 
 #[derive(Config, Debug)]
 pub struct WindowAttentionConfig {
@@ -103,7 +104,7 @@ impl WindowAttention {
         let [batch, height, width, channels] = map.dims();
         let device = map.device();
         let tokens = window * window;
-        let qkv = into_inference_values(self.qkv.forward(map.clone())).ok()?;
+        let qkv = into_inference_values(linear(&self.qkv, map.clone())).ok()?;
         let qkv_bias = self
             .qkv
             .bias
@@ -141,7 +142,7 @@ impl WindowAttention {
             TensorData::new(out, [batch, height, width, channels]),
             &device,
         );
-        Some(self.proj.forward(out))
+        Some(linear(&self.proj, out))
     }
 
     /// The bias table rows of every token pair of a window of `tokens` tokens.

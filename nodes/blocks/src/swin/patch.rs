@@ -2,6 +2,7 @@
 //! (2 x 2 tokens -> one, channels x 2) going down, and patch expanding (the reverse) going up.
 //! Merging and expanding share one 2 x 2 rearrangement and its exact inverse.
 
+use crate::linear_on_host::linear;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
@@ -78,7 +79,7 @@ pub fn patch_merging(dim: usize, device: &Device) -> PatchMerging {
 impl PatchMerging {
     // [B, H, W, C] -> [B, H / 2, W / 2, 2C]
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.reduction.forward(self.norm.forward(space_to_depth(x)))
+        linear(&self.reduction, self.norm.forward(space_to_depth(x)))
     }
 }
 
@@ -101,6 +102,6 @@ pub fn patch_expanding(dim: usize, device: &Device) -> PatchExpanding {
 impl PatchExpanding {
     // [B, H, W, C] -> [B, 2H, 2W, C / 2]
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.norm.forward(depth_to_space(self.expand.forward(x)))
+        self.norm.forward(depth_to_space(linear(&self.expand, x)))
     }
 }

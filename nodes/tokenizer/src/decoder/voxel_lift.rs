@@ -11,6 +11,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
 use crate::render::VoxelField;
+use bevworld_blocks::linear_on_host::linear;
 use bevworld_blocks::swin::patch::{PatchExpanding, patch_expanding};
 use bevworld_blocks::swin::{SwinBlock, SwinBlockConfig, run_blocks};
 
@@ -86,11 +87,11 @@ impl VoxelLift {
     /// features.
     // [1, C', h, w] -> table [2h * 2w * Z * r * r, C_v]
     pub fn forward(&self, latent: Tensor<4>) -> VoxelField {
-        let x = self.input.forward(latent.permute([0, 2, 3, 1])); // [1, h, w, D]
+        let x = linear(&self.input, latent.permute([0, 2, 3, 1])); // [1, h, w, D]
         let x = run_blocks(&self.before, x);
         let x = self.expand.forward(x); // [1, 2h, 2w, D/2]
         let x = run_blocks(&self.after, x);
-        let x = self.head.forward(x); // [1, 2h, 2w, Z * r * r * C_v]
+        let x = linear(&self.head, x); // [1, 2h, 2w, Z * r * r * C_v]
         VoxelField::from_head(x, self.voxel_channels, self.voxel_height, self.cell_split)
     }
 }

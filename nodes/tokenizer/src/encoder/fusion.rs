@@ -12,6 +12,7 @@
 //! outside its image gets weight exactly 0, and a query that no camera sees gets nothing from
 //! the images, only its residual.
 
+use bevworld_blocks::linear_on_host::linear;
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 
@@ -86,23 +87,21 @@ impl DeformableFusion {
         let (queries, k) = (height * width, self.heights);
         let query = bev.reshape([dim, queries]).swap_dims(0, 1); // [Q, C]
 
-        let value = self.value.forward(images.permute([0, 2, 3, 1])); // [N_c, h, w, C]
+        let value = linear(&self.value, images.permute([0, 2, 3, 1])); // [N_c, h, w, C]
         // Offsets in feature-map cells, turned into [-1, 1] units.
         let scale = Tensor::<1>::from_data(
             TensorData::new(vec![2.0 / feature_w as f32, 2.0 / feature_h as f32], [2]),
             &query.device(),
         )
         .reshape([1, 1, 1, 2]);
-        let offsets = self
-            .offsets
-            .forward(query.clone())
+        let offsets = linear(&self.offsets, query.clone())
             .reshape([queries, cameras, k, 2])
             .swap_dims(0, 1)
             * scale; // [N_c, Q, K, 2]
         let grid = reference + offsets;
 
         let valid_qck = valid.swap_dims(0, 1).reshape([queries, cameras * k]); // [Q, N_c*K]
-        let logits = self.weights.forward(query.clone()) // [Q, N_c*K]
+        let logits = linear(&self.weights, query.clone()) // [Q, N_c*K]
             + (valid_qck.clone().neg().add_scalar(1.0)).mul_scalar(MASKED);
         let attention = (softmax_last(logits) * valid_qck)
             .reshape([queries, cameras, k])
@@ -111,7 +110,7 @@ impl DeformableFusion {
         let grid = grid.reshape([cameras, queries * k, 2]);
         let mut sampled = sample_bilinear(value, grid.clone()); // [N_c, Q * K, C]
         for (projection, level) in self.fine_values.iter().zip(fine) {
-            let value = projection.forward(level.permute([0, 2, 3, 1])); // [N_c, h_l, w_l, C]
+            let value = linear(projection, level.permute([0, 2, 3, 1])); // [N_c, h_l, w_l, C]
             sampled = sampled + sample_bilinear(value, grid.clone());
         }
         let sampled = sampled.reshape([cameras, queries, k, dim]); // [N_c, Q, K, C]
@@ -119,7 +118,7 @@ impl DeformableFusion {
             .sum_dim(2)
             .sum_dim(0)
             .reshape([queries, dim]); // [Q, C]
-        let out = query + self.output.forward(fused); // [Q, C]
+        let out = query + linear(&self.output, fused); // [Q, C]
         out.swap_dims(0, 1).reshape([1, dim, height, width])
     }
 }

@@ -11,6 +11,7 @@
 //! real value is already >= 0, so they never win the max. Only non-empty pillars are computed;
 //! the scatter writes them into a zero BEV map.
 
+use bevworld_blocks::linear_on_host::linear;
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
@@ -46,7 +47,7 @@ impl PillarNet {
     // points [P, N, 9], valid [P, N] -> [P, C]
     pub fn forward(&self, points: Tensor<3>, valid: Tensor<2>) -> Tensor<2> {
         let [pillars, slots, _] = points.dims();
-        let h = self.norm.forward(self.linear.forward(points)); // [P, N, C]
+        let h = self.norm.forward(linear(&self.linear, points)); // [P, N, C]
         let h = relu(h) * valid.reshape([pillars, slots, 1]);
         let [_, _, channels] = h.dims();
         h.max_dim(1).reshape([pillars, channels])
