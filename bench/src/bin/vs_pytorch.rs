@@ -605,8 +605,17 @@ fn write_page(results: &Path) {
 /// One machine's table, its agreement and setup, and its goals, met or missed.
 fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
     draw_bars(results, kind, record);
+    // A record without our own product's rate predates the host kernels of attention, linear
+    // layers and adaLN: say so rather than let its times stand for today's code.
+    let era = if get(&record["ours"], &["2", "host_matmul_gflops"]).is_some() {
+        ""
+    } else {
+        "*Measured before our host kernels for attention, linear layers and adaLN, and before \
+         `fast_math::exp` lost its saturating conversion: these times are of the code then, not \
+         re-measured since.*\n\n"
+    };
     format!(
-        "## {kind}\n\nMachine: {}\n\n{}\n{}\n\n{}\n\n{}\n\n### Goals on this machine\n\n{}\n\n![ours \
+        "## {kind}\n\n{era}Machine: {}\n\n{}\n{}\n\n{}\n\n{}\n\n### Goals on this machine\n\n{}\n\n![ours \
          against PyTorch on {kind}](vs-pytorch-{kind}.svg)\n",
         machine_line(record),
         stage_table(record),
@@ -930,8 +939,8 @@ fn common_notes(results: &Path) -> String {
          saturating `as i32`, which had made it four times slower under AVX-512. On one thread \
          the pass is now about as fast as eager's (the tables above); what is left is the \
          step from one core to two, where PyTorch's time halves and ours does not: the ops \
-         still run by burn (the heads' split and merge copies, the residual additions) take \
-         a larger share on two cores.\n\
+         still run by burn (the copies that split and merge the heads and regroup the tokens \
+         by frame or by place) take a larger share on two cores.\n\
          - **Skipping** is far from 3× because the shipped field has α > 0.001 in {:.0}% of its \
          voxels: there is little empty space to skip. What is skipped is mostly early stop and \
          rays leaving the grid.\n\
