@@ -7,9 +7,12 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
 use crate::activation::softmax_last;
-use crate::attention_on_host::{HeadBias, HeadShapes, attention_on_host};
+use crate::attention_on_host::{
+    EarlierKeysValues, HeadBias, HeadShapes, SequenceRows, attention_on_host,
+    packed_attention_on_host, unpack_heads,
+};
 use crate::host::{checked_values, runs_on_host};
-use crate::linear_on_host::linear;
+use crate::linear_on_host::{linear, linear_values};
 
 /// Additive attention bias for token pairs that must not attend to each other. Large enough
 /// that `exp` gives exactly 0 in f32, finite so that no backward pass ever sees `inf - inf`.
@@ -185,5 +188,64 @@ impl MultiHeadAttention {
         };
         let out = merge_heads(&self.proj, scaled_dot_product(q, keys, values, bias));
         (out, [k, v])
+    }
+
+    /// Self-attention of the sequences that `sequences` lays out among the rows of `x` (every
+    /// row of `[.., C]` one token), for inference on the CPU: the packed projection is read
+    /// where it lies (`packed_attention_on_host`), with no per-head copies and no regrouping
+    /// of the rows into sequences and back. The output keeps `x`'s layout. With `keep`, also
+    /// this call's keys and values, `[S, H, N, d]` each, to be a later call's `earlier`.
+    /// `bias` is `[N, P + N]`, the same for every sequence and head.
+    ///
+    /// # Panics
+    /// When `x` or the layer is not f32 CPU inference (check `runs_on_host`), or the shapes
+    /// disagree with `sequences`.
+    // x: [..., C], earlier: 2 × [S, H, P, d], bias: [N, P + N] -> [..., C], 2 × [S, H, N, d]
+    pub fn forward_rows_on_host<const D: usize>(
+        &self,
+        x: Tensor<D>,
+        sequences: SequenceRows,
+        earlier: Option<&[Tensor<4>; 2]>,
+        bias: Option<Tensor<2>>,
+        keep: bool,
+    ) -> (Tensor<D>, Option<[Tensor<4>; 2]>) {
+        let dims = x.dims();
+        let device = x.device();
+        let channels = dims[D - 1];
+        let heads = self.heads;
+        let dim = channels / heads;
+        let on_host = "an f32 CPU inference layer beside its input";
+        let qkv = linear_values(&self.qkv, &checked_values(x)).expect(on_host);
+        let earlier_values = earlier.map(|[k, v]| {
+            let tokens = k.dims()[2];
+            (checked_values(k.clone()), checked_values(v.clone()), tokens)
+        });
+        let bias = bias.map(checked_values);
+        let out = packed_attention_on_host(
+            &qkv,
+            sequences,
+            heads,
+            dim,
+            earlier_values
+                .as_ref()
+                .map(|(keys, values, tokens)| EarlierKeysValues {
+                    keys,
+                    values,
+                    tokens: *tokens,
+                }),
+            bias.as_deref(),
+        );
+        let y = linear_values(&self.proj, &out).expect(on_host);
+        let kept = keep.then(|| {
+            let shape = [sequences.sequences(), heads, sequences.length, dim];
+            let part = |i: usize| {
+                Tensor::from_data(
+                    TensorData::new(unpack_heads(&qkv, sequences, heads, dim, i), shape),
+                    &device,
+                )
+            };
+            [part(1), part(2)]
+        });
+        (Tensor::from_data(TensorData::new(y, dims), &device), kept)
     }
 }

@@ -166,3 +166,136 @@ pub fn matrix_product(
         );
     }
 }
+
+/// A matrix placed in a buffer by strides: element `(i, j)` at `offset + i·row + j·column`.
+/// The heads of a packed `[tokens, 3·C]` projection, or one token of every frame, are matrices
+/// of this kind: a kernel multiplies them where they lie instead of copying them out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Placed {
+    pub offset: usize,
+    pub row: usize,
+    pub column: usize,
+}
+
+impl Placed {
+    /// A row-major `[_, columns]` matrix from `offset`.
+    pub fn rows(offset: usize, columns: usize) -> Self {
+        Self {
+            offset,
+            row: columns,
+            column: 1,
+        }
+    }
+
+    /// One past the largest index of its `[rows, columns]` elements; 0 when it has none.
+    pub fn end(&self, rows: usize, columns: usize) -> usize {
+        if rows == 0 || columns == 0 {
+            return 0;
+        }
+        self.offset + (rows - 1) * self.row + (columns - 1) * self.column + 1
+    }
+}
+
+/// A buffer that threads write at once, each to elements no other touches: the output of a
+/// kernel whose tasks' results interleave in memory (one attention head's channels on every
+/// token row), where `chunks_mut` cannot hand out the pieces.
+pub struct DisjointWrites<'a> {
+    start: *mut f32,
+    len: usize,
+    _buffer: std::marker::PhantomData<&'a mut [f32]>,
+}
+
+// SAFETY: the buffer is borrowed mutably for 'a, and `placed_product`'s contract makes every
+// caller write elements that no other thread reads or writes.
+#[allow(unsafe_code)]
+unsafe impl Send for DisjointWrites<'_> {}
+#[allow(unsafe_code)]
+unsafe impl Sync for DisjointWrites<'_> {}
+
+impl<'a> DisjointWrites<'a> {
+    pub fn new(buffer: &'a mut [f32]) -> Self {
+        Self {
+            start: buffer.as_mut_ptr(),
+            len: buffer.len(),
+            _buffer: std::marker::PhantomData,
+        }
+    }
+}
+
+/// `dst = scale · a b`, or `dst += scale · a b` when `accumulate`, for `a` `[m, k]`, `b`
+/// `[k, n]` and `dst` `[m, n]`, each placed in its buffer by strides, on the calling thread.
+///
+/// # Safety
+/// No other thread reads or writes the `[m, n]` elements of `dst` during the call.
+///
+/// # Panics
+/// When a matrix reaches past the end of its buffer.
+#[allow(unsafe_code)] // gemm's interface is raw pointers and strides
+#[allow(clippy::too_many_arguments)] // three placed matrices, their sizes and gemm's two factors
+pub unsafe fn placed_product(
+    dst: &DisjointWrites<'_>,
+    dst_at: Placed,
+    a: &[f32],
+    a_at: Placed,
+    b: &[f32],
+    b_at: Placed,
+    [m, n, k]: [usize; 3],
+    scale: f32,
+    accumulate: bool,
+) {
+    assert!(
+        dst_at.end(m, n) <= dst.len,
+        "the product reaches past its buffer"
+    );
+    assert!(
+        a_at.end(m, k) <= a.len(),
+        "the left factor reaches past its buffer"
+    );
+    assert!(
+        b_at.end(k, n) <= b.len(),
+        "the right factor reaches past its buffer"
+    );
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        // gemm reads no factor then; `dst = 0` still holds, and `dst += 0` leaves it.
+        if !accumulate {
+            for i in 0..m {
+                for j in 0..n {
+                    // SAFETY: within the buffer (checked above), and ours alone (the contract).
+                    unsafe {
+                        *dst.start
+                            .add(dst_at.offset + i * dst_at.row + j * dst_at.column) = 0.0;
+                    }
+                }
+            }
+        }
+        return;
+    }
+    // SAFETY: every element gemm reads or writes lies in its buffer (the ends checked above);
+    // the caller keeps other threads off dst's elements.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.start.add(dst_at.offset),
+            dst_at.column as isize,
+            dst_at.row as isize,
+            accumulate,
+            a.as_ptr().add(a_at.offset),
+            a_at.column as isize,
+            a_at.row as isize,
+            b.as_ptr().add(b_at.offset),
+            b_at.column as isize,
+            b_at.row as isize,
+            if accumulate { 1.0 } else { 0.0 },
+            scale,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}

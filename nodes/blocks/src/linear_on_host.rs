@@ -42,9 +42,36 @@ fn forward<const D: usize>(layer: &Linear, x: Tensor<D>, then_gelu: bool) -> Ten
     assert_eq!(dims[D - 1], inputs, "the layer takes {inputs} channels");
     dims[D - 1] = outputs;
     let device = x.device();
-    let x = checked_values(x);
+    let y = product(layer, &checked_values(x), checked_values(weight), then_gelu);
+    Tensor::from_data(TensorData::new(y, dims), &device)
+}
+
+/// `layer.forward` of row-major `[rows, C_in]` values, as values `[rows, C_out]`, for a kernel
+/// that keeps its activations on the host between layers; `None` when the layer is not an
+/// f32 CPU inference module (the caller runs the tensor path).
+///
+/// # Panics
+/// When `x` is not a whole number of `C_in` rows.
+// x: [R, C_in] -> [R, C_out]
+pub fn linear_values(layer: &Linear, x: &[f32]) -> Option<Vec<f32>> {
+    let weight = layer.weight.val(); // [C_in, C_out]
+    if !runs_on_host(&weight) {
+        return None;
+    }
+    let inputs = weight.dims()[0];
+    assert!(
+        inputs > 0 && x.len().is_multiple_of(inputs),
+        "{} values are not rows of the layer's {inputs} channels",
+        x.len()
+    );
+    Some(product(layer, x, checked_values(weight), false))
+}
+
+/// `x W + b` (then GELU), the output started as the bias and the product accumulated onto it.
+// x: [R, C_in], weight: [C_in, C_out] -> [R, C_out]
+fn product(layer: &Linear, x: &[f32], weight: Vec<f32>, then_gelu: bool) -> Vec<f32> {
+    let [inputs, outputs] = layer.weight.dims();
     let rows = x.len() / inputs.max(1);
-    let weight = checked_values(weight);
     // A bias beside a weight on the CPU is on the CPU: the module's parameters share a device.
     let bias = layer.bias.as_ref().map(|b| checked_values(b.val()));
     let mut y = match &bias {
@@ -54,7 +81,7 @@ fn forward<const D: usize>(layer: &Linear, x: Tensor<D>, then_gelu: bool) -> Ten
     if rows > 0 && outputs > 0 {
         matrix_product(
             &mut y,
-            &x,
+            x,
             Right::AsIs(&weight),
             [rows, outputs, inputs],
             1.0,
@@ -65,5 +92,5 @@ fn forward<const D: usize>(layer: &Linear, x: Tensor<D>, then_gelu: bool) -> Ten
             gelu_in_place(&mut y);
         }
     }
-    Tensor::from_data(TensorData::new(y, dims), &device)
+    y
 }

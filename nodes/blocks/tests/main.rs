@@ -10,6 +10,7 @@ mod compare;
 mod fast_math;
 mod host_attention;
 mod linear_on_host;
+mod packed_attention;
 mod reference;
 mod softmax;
 mod swin;

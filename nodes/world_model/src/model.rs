@@ -167,7 +167,7 @@ impl WorldModel {
         let mut x = self.embed(context, 0, None);
         let mut keys_values = Vec::with_capacity(self.blocks.len());
         for block in &self.blocks {
-            let (next, kv) = block.forward_after(x, condition.clone(), None, causal.clone());
+            let (next, kv) = block.forward_keeping(x, condition.clone(), causal.clone());
             x = next;
             keys_values.push(kv);
         }
@@ -196,9 +196,7 @@ impl WorldModel {
         let condition = self.condition.forward(actions, levels);
         let mut x = self.embed(future, cache.frames, warped);
         for (block, prefix) in self.blocks.iter().zip(&cache.keys_values) {
-            x = block
-                .forward_after(x, condition.clone(), Some(prefix), mask.clone())
-                .0;
+            x = block.forward_after(x, condition.clone(), prefix, mask.clone());
         }
         self.head(x, condition)
     }

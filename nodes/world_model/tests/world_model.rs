@@ -480,3 +480,64 @@ fn the_context_cache_changes_no_prediction_and_no_forecast() {
         );
     }
 }
+
+#[test]
+fn inference_on_the_cpu_equals_the_tensor_path_of_training() {
+    // CPU inference runs our host kernels (attention read from the packed projection where it
+    // lies, across frames and within them); under autodiff the model runs burn's ops, as in
+    // training. Both must predict the same, whole and after the condition frames' cache.
+    use burn::module::Module;
+    let c = small();
+    let model = trained_like(&c, 11);
+    let (latents, actions) = inputs(&c, 2, 12);
+    let levels = levels(&c, 2, 300.0);
+    let autodiff = device().autodiff();
+    let taught = model.clone().to_device(&autodiff);
+    let to5 = |t: &Tensor<5>| Tensor::<5>::from_data(t.clone().into_data(), &autodiff);
+    let to3 = |t: &Tensor<3>| Tensor::<3>::from_data(t.clone().into_data(), &autodiff);
+    let whole = model.forward(
+        latents.clone(),
+        actions.clone(),
+        &levels,
+        c.future_frames,
+        None,
+    );
+    let whole_taught = taught.forward(to5(&latents), to3(&actions), &levels, c.future_frames, None);
+    let gap = largest_gap(&values(whole), &values(whole_taught));
+    assert!(gap < 1e-4, "whole: {gap}");
+
+    let p = c.context_frames;
+    let future = c.future_frames;
+    let split = |t: &Tensor<5>| (t.clone().narrow(1, 0, p), t.clone().narrow(1, p, future));
+    let split3 = |t: &Tensor<3>| (t.clone().narrow(1, 0, p), t.clone().narrow(1, p, future));
+    let (context, later) = split(&latents);
+    let (context_actions, later_actions) = split3(&actions);
+    let future_levels: Vec<f32> = levels
+        .chunks(p + future)
+        .flat_map(|frames| frames[p..].to_vec())
+        .collect();
+    let cached = model.forward_future(
+        &model.context(context.clone(), context_actions.clone()),
+        later.clone(),
+        later_actions.clone(),
+        &future_levels,
+        None,
+    );
+    let cached_taught = taught.forward_future(
+        &taught.context(to5(&context), to3(&context_actions)),
+        to5(&later),
+        to3(&later_actions),
+        &future_levels,
+        None,
+    );
+    let gap = largest_gap(&values(cached), &values(cached_taught));
+    assert!(gap < 1e-4, "after the cache: {gap}");
+}
+
+fn largest_gap(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
