@@ -10,6 +10,7 @@
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+pub mod forecast_budget;
 pub mod readme;
 
 use std::path::PathBuf;
@@ -46,6 +47,27 @@ pub fn machine_record() -> serde_json::Value {
         "host_kernels": bevworld_blocks::host::dispatch_level(),
         "matmul_kernels": if simd.contains(&"avx512f") { "gemm avx512 (x86-v4)" } else if simd.contains(&"avx2") { "gemm avx2+fma" } else { "gemm baseline" },
     })
+}
+
+/// The code a benchmark ran: the checkout's commit, marked when tracked files had changes
+/// beside it; "unknown" outside a git checkout.
+pub fn code_version() -> String {
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .args(args)
+            .current_dir(manifest_dir())
+            .output()
+            .ok()
+            .filter(|out| out.status.success())
+            .map(|out| String::from_utf8_lossy(&out.stdout).trim().to_string())
+    };
+    let Some(head) = git(&["rev-parse", "--short", "HEAD"]) else {
+        return "unknown".into();
+    };
+    match git(&["status", "--porcelain", "--untracked-files=no"]) {
+        Some(changes) if !changes.is_empty() => format!("{head} with changes"),
+        _ => head,
+    }
 }
 
 /// A short name for a kind of machine, for the file of its figures: `intel-xeon-avx512`,

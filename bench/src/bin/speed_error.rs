@@ -8,11 +8,18 @@
 //!
 //!   bench/scripts/speed-vs-error.sh
 //!   cargo run --release -p bevworld-bench --bin speed_error -- out/speed-vs-error
+//!
+//! With `budget METRICS SCORES` it records this machine's line of the forecast graph's latency
+//! budget from one run of the graph instead (`bench/scripts/forecast-budget.sh`,
+//! `bevworld_bench::forecast_budget`) and regenerates that table in the page.
+//!   cargo run --release -p bevworld-bench --bin speed_error -- budget METRICS.json SCORES.json
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use bevworld_bench::{markdown_table, percentile, results_dir, write_results};
+use bevworld_bench::{
+    forecast_budget, machine_record, markdown_table, percentile, results_dir, write_results,
+};
 use bevworld_blocks::init::random_normal;
 use bevworld_plot::{Labelled, Reference, ScatterPlot, scatter_png};
 use bevworld_world_model::{
@@ -145,8 +152,35 @@ fn cache_timings(root: &Path) -> Vec<(usize, f64, f64)> {
         .collect()
 }
 
+/// `budget METRICS SCORES`: this machine's line of the budget, then the page's table again.
+fn record_budget(metrics: &Path, scores: &Path) {
+    let record = forecast_budget::record(metrics, scores, &bevworld_bench::code_version())
+        .unwrap_or_else(|e| panic!("the forecast graph's run: {e}"));
+    let results = results_dir();
+    let file = forecast_budget::write(&results, &record)
+        .unwrap_or_else(|e| panic!("writing the budget record: {e}"));
+    let page_path = results.join("speed-vs-error.md");
+    let page = std::fs::read_to_string(&page_path)
+        .unwrap_or_else(|e| panic!("{}: {e}", page_path.display()));
+    let page = forecast_budget::replace_section(&page, &forecast_budget::section(&results));
+    bevworld_atomic_file::write(&page_path, page.as_bytes())
+        .unwrap_or_else(|e| panic!("writing {}: {e}", page_path.display()));
+    println!(
+        "{} written; the budget table of {} regenerated",
+        file.display(),
+        page_path.display()
+    );
+}
+
 fn main() {
     bevworld_device::keep_freed_memory();
+    let args: Vec<String> = std::env::args().collect();
+    if let [_, mode, metrics, scores] = args.as_slice()
+        && mode == "budget"
+    {
+        record_budget(Path::new(metrics), Path::new(scores));
+        return;
+    }
     let root = bevworld_bench::manifest_dir().join("..");
     let runs = std::env::args()
         .nth(1)
@@ -434,6 +468,7 @@ fn main() {
             "## The tokenizer: dense rendering against empty-space skipping\n\n{tokenizer}\n"
         ));
     }
+    table.push_str(&forecast_budget::section(&results_dir()));
     write_results(
         "speed-vs-error",
         "Speed against error: the forecast's switches",
@@ -441,6 +476,7 @@ fn main() {
         &table,
         READING,
         &serde_json::json!({
+            "machine": machine_record(),
             "steps": json_rows,
             "cache": cache.iter().map(|(s, c, r)| serde_json::json!({"steps": s, "cached_ms": c, "recomputed_ms": r})).collect::<Vec<_>>(),
             "horizons_all": horizons_all.map(|t| t["latency_ms"].clone()),

@@ -542,6 +542,8 @@ fn report(dir: &Path) {
     let kind = bevworld_bench::machine_kind(&machine);
     let record = json!({
         "machine": machine,
+        // The rounds ran just before, from this checkout (`bench/scripts/vs-pytorch.sh`).
+        "commit": bevworld_bench::code_version(),
         "rounds": our_rounds.len(),
         "ours": ours,
         "torch": torch,
@@ -607,12 +609,19 @@ fn machine_section(results: &Path, kind: &str, record: &Value) -> String {
     draw_bars(results, kind, record);
     // A record without our own product's rate predates the host kernels of attention, linear
     // layers and adaLN: say so rather than let its times stand for today's code.
-    let era = if get(&record["ours"], &["2", "host_matmul_gflops"]).is_some() {
-        ""
-    } else {
+    // A record without the commit predates the world model's packed attention.
+    let era = if get(&record["ours"], &["2", "host_matmul_gflops"]).is_none() {
         "*Measured before our host kernels for attention, linear layers and adaLN, and before \
          `fast_math::exp` lost its saturating conversion: these times are of the code then, not \
          re-measured since.*\n\n"
+            .to_string()
+    } else if let Some(commit) = record["commit"].as_str() {
+        format!("Code: commit `{commit}`.\n\n")
+    } else {
+        "*Measured before the world model's attention read its packed projection in place \
+         (commit `5a90777`): the world model's time is of the code then, not re-measured \
+         since.*\n\n"
+            .to_string()
     };
     format!(
         "## {kind}\n\n{era}Machine: {}\n\n{}\n{}\n\n{}\n\n{}\n\n### Goals on this machine\n\n{}\n\n![ours \
