@@ -175,6 +175,44 @@ pub fn section(results: &Path) -> String {
             ]
         })
         .collect();
+    // Kinds that other pages measured but this table lacks: named, so that a missing line reads
+    // as not yet measured rather than as absent.
+    let budgeted: Vec<String> = files
+        .iter()
+        .filter_map(|p| {
+            p.file_stem()?
+                .to_str()?
+                .strip_prefix("forecast-budget-")
+                .map(String::from)
+        })
+        .collect();
+    let mut unmeasured: Vec<String> = std::fs::read_dir(results)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|entry| {
+            let name = entry.file_name().to_str()?.to_string();
+            let kind = name
+                .strip_prefix("vs-pytorch-")?
+                .strip_suffix(".json")?
+                .to_string();
+            (!budgeted.contains(&kind)).then_some(kind)
+        })
+        .collect();
+    unmeasured.sort();
+    let unmeasured = if unmeasured.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "\nNo line yet for {}, measured in [vs-pytorch.md](vs-pytorch.md): the script adds \
+             one when run on that kind.\n",
+            unmeasured
+                .iter()
+                .map(|k| format!("`{k}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
     let table = if rows.is_empty() {
         "No machine recorded yet: run `bench/scripts/forecast-budget.sh`.\n".to_string()
     } else {
@@ -201,7 +239,7 @@ pub fn section(results: &Path) -> String {
          them), so a stage reads slower here than alone. A forecast is its rollout and the \
          render of 6 cameras and the sweep at +0.5, +1 and +3 s; the graph's time per keyframe \
          is the run's wall time over its keyframes, against the logs' 500 ms between keyframes.\n\n\
-         {table}{END}\n"
+         {table}{unmeasured}{END}\n"
     )
 }
 
