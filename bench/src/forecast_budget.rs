@@ -233,8 +233,8 @@ pub fn section(results: &Path) -> String {
     format!(
         "{BEGIN}\n## The forecast graph's latency budget, per kind of CPU\n\n\
          The README's main job with the model's views only (`bevworld run \
-         configs/graphs/forecast.yaml --set 'methods=[model]' --metrics …`, 16 keyframes, 13 \
-         forecasts, 1 DDIM step), made by `bench/scripts/forecast-budget.sh`: each stage's time \
+         configs/graphs/forecast.yaml --set 'methods=[model]' --metrics …`: the demo scene's \
+         keyframes, one forecast each where three are behind it, 1 DDIM step), made by `bench/scripts/forecast-budget.sh`: each stage's time \
          per call inside the graph, where the nodes share the cores (the scores node beside \
          them), so a stage reads slower here than alone. A forecast is its rollout and the \
          render of 6 cameras and the sweep at +0.5, +1 and +3 s; the graph's time per keyframe \

@@ -1,7 +1,9 @@
 //! Multi-head scaled dot-product attention (Vaswani et al. 2017),
 //! `softmax(Q Kᵀ / √d + B) V`, with an additive bias `B` that carries masks and learned
 //! position biases. Swin's window attention and the world model's spatial and temporal
-//! attention all go through `scaled_dot_product`.
+//! attention all go through `scaled_dot_product` under autodiff and on other devices; for
+//! inference on the CPU, Swin runs its own window kernel and the world model
+//! `MultiHeadAttention::forward_rows_on_host`.
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
