@@ -940,16 +940,23 @@ fn common_notes(results: &Path) -> String {
          - **The lift against torch.compile** is missed. The lift is Swin blocks at 16–32 \
          channels; compile fuses each block's norms, GELU and residuals into few kernels, while \
          ours still runs its norms and residuals as separate burn ops around our attention and \
-         linear kernels.\n\
-         - **The world model against eager.** Its attention now runs one head at a time with \
-         the head's logits (256 × 256, 256 KB) kept in L2, where burn's ops wrote \
-         `[frames·heads, 256, 256]` logits (9 MB a block) four times; its adaLN norm and \
-         modulation are one pass per token; `fast_math::exp` no longer converts with a \
-         saturating `as i32`, which had made it four times slower under AVX-512. On one thread \
-         the pass is now about as fast as eager's (the tables above); what is left is the \
-         step from one core to two, where PyTorch's time halves and ours does not: the ops \
-         still run by burn (the copies that split and merge the heads and regroup the tokens \
-         by frame or by place) take a larger share on two cores.\n\
+         linear kernels. `perf` on the AVX-512 EPYC puts about two fifths of the lift in the \
+         window attention kernel itself (64-token windows of 8–16 channels a head, too small \
+         for gemm to pay) and much of the rest in writing the head's 16.8 MB voxel table: the \
+         bias copied in, gemm's accumulation, and burn's copy into an aligned allocation. \
+         Folding the kernel's reductions pairwise instead of in one running sum was tried and \
+         did not move the lift's time beyond the noise, so it was not kept.\n\
+         - **The world model against eager.** Its attention reads the packed `[tokens, 3·C]` \
+         projection where it lies (`packed_attention_on_host`, commit `5a90777`): one \
+         (sequence, head) per task, its logits kept in L2, each product reading its head by \
+         strides, for the spatial attention within each frame and the temporal attention \
+         across frames alike, so the heads are no longer split into copies and the `[B, F, L, \
+         D]` tokens no longer regrouped by place and back; only the condition frames' cache \
+         copies its keys and values out. Its adaLN norm and modulation are one pass per token, \
+         and `fast_math::exp` no longer converts with a saturating `as i32`, which had made it \
+         four times slower under AVX-512. Before the packed attention the pass tied eager on \
+         one thread and fell behind on two, where the copies took a larger share; a section \
+         marked as measured before it still shows that.\n\
          - **Skipping** is far from 3× because the shipped field has α > 0.001 in {:.0}% of its \
          voxels: there is little empty space to skip. What is skipped is mostly early stop and \
          rays leaving the grid.\n\
