@@ -12,7 +12,7 @@ use std::path::Path;
 
 use serde_json::{Value, json};
 
-use crate::{machine_kind, machine_record, markdown_table};
+use crate::{kind_records, machine_kind, machine_record, markdown_table};
 
 /// Where the budget table starts and ends in `speed-vs-error.md`.
 pub const BEGIN: &str = "<!-- forecast budget: generated from forecast-budget-*.json -->";
@@ -122,22 +122,11 @@ pub fn write(results: &Path, record: &Value) -> std::io::Result<std::path::PathB
 /// The budget table, one line per kind of machine recorded in `results`, between `BEGIN` and
 /// `END`.
 pub fn section(results: &Path) -> String {
-    let mut files: Vec<_> = std::fs::read_dir(results)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|entry| entry.path())
-        .filter(|path| {
-            path.file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(|n| n.starts_with("forecast-budget-") && n.ends_with(".json"))
-        })
-        .collect();
-    files.sort();
+    let files = kind_records(results, "forecast-budget-");
     let ms = |v: &Value| v.as_f64().map_or("—".to_string(), |x| format!("{x:.0}"));
     let rows: Vec<Vec<String>> = files
         .iter()
-        .filter_map(|path| read(path).ok())
+        .filter_map(|(_, path)| read(path).ok())
         .map(|r| {
             let machine = &r["machine"];
             let per_keyframe = r["wall_seconds"].as_f64().unwrap_or(f64::NAN) * 1e3
@@ -177,29 +166,11 @@ pub fn section(results: &Path) -> String {
         .collect();
     // Kinds that other pages measured but this table lacks: named, so that a missing line reads
     // as not yet measured rather than as absent.
-    let budgeted: Vec<String> = files
-        .iter()
-        .filter_map(|p| {
-            p.file_stem()?
-                .to_str()?
-                .strip_prefix("forecast-budget-")
-                .map(String::from)
-        })
-        .collect();
-    let mut unmeasured: Vec<String> = std::fs::read_dir(results)
+    let unmeasured: Vec<String> = kind_records(results, "vs-pytorch-")
         .into_iter()
-        .flatten()
-        .flatten()
-        .filter_map(|entry| {
-            let name = entry.file_name().to_str()?.to_string();
-            let kind = name
-                .strip_prefix("vs-pytorch-")?
-                .strip_suffix(".json")?
-                .to_string();
-            (!budgeted.contains(&kind)).then_some(kind)
-        })
+        .map(|(kind, _)| kind)
+        .filter(|kind| !files.iter().any(|(budgeted, _)| budgeted == kind))
         .collect();
-    unmeasured.sort();
     let unmeasured = if unmeasured.is_empty() {
         String::new()
     } else {

@@ -70,6 +70,28 @@ pub fn code_version() -> String {
     }
 }
 
+/// The records `<prefix><kind>.json` in `results`, one per kind of machine measured, as
+/// (kind, path) in the order of their file names: the pages that keep a table per CPU kind read them all.
+pub fn kind_records(results: &std::path::Path, prefix: &str) -> Vec<(String, PathBuf)> {
+    let mut records: Vec<(String, PathBuf)> = std::fs::read_dir(results)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|entry| {
+            let path = entry.path();
+            let kind = path
+                .file_name()?
+                .to_str()?
+                .strip_prefix(prefix)?
+                .strip_suffix(".json")?
+                .to_string();
+            Some((kind, path))
+        })
+        .collect();
+    records.sort_by(|a, b| a.1.cmp(&b.1));
+    records
+}
+
 /// A short name for a kind of machine, for the file of its figures: `intel-xeon-avx512`,
 /// `amd-epyc-avx2`. Machines of one kind run the same kernels.
 pub fn machine_kind(record: &serde_json::Value) -> String {

@@ -175,9 +175,11 @@ fn record_budget(metrics: &Path, scores: &Path) {
 fn main() {
     bevworld_device::keep_freed_memory();
     let args: Vec<String> = std::env::args().collect();
-    if let [_, mode, metrics, scores] = args.as_slice()
-        && mode == "budget"
-    {
+    if args.get(1).is_some_and(|mode| mode == "budget") {
+        let [_, _, metrics, scores] = args.as_slice() else {
+            eprintln!("usage: speed_error budget METRICS.json SCORES.json");
+            std::process::exit(2);
+        };
         record_budget(Path::new(metrics), Path::new(scores));
         return;
     }

@@ -565,27 +565,11 @@ fn report(dir: &Path) {
 /// `bench/results/vs-pytorch.md` from every `vs-pytorch-<kind>.json`: one section per kind
 /// of machine, then what holds for all of them.
 fn write_page(results: &Path) {
-    let mut files: Vec<_> = std::fs::read_dir(results)
-        .expect("results")
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            p.file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(|n| n.starts_with("vs-pytorch-") && n.ends_with(".json"))
-        })
-        .collect();
-    files.sort();
     let mut sections = Vec::new();
-    for path in &files {
-        let Some(record) = read_json(path) else {
+    for (kind, path) in bevworld_bench::kind_records(results, "vs-pytorch-") {
+        let Some(record) = read_json(&path) else {
             continue;
         };
-        let kind = path
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .and_then(|s| s.strip_prefix("vs-pytorch-"))
-            .unwrap_or("unknown")
-            .to_string();
         sections.push(machine_section(results, &kind, &record));
     }
     let page = format!(
