@@ -181,6 +181,74 @@ fn eval_forecast_scores_every_context_and_writes_every_file_it_promises() {
     assert_eq!(with_truth, [7, 2]);
 }
 
+#[test]
+fn eval_forecast_with_draws_scores_the_best_of_them_beside_the_unchanged_point_forecast() {
+    let dir = tempfile::tempdir().expect("dir");
+    // 4 s: keyframes 3..=6 are contexts with a logged frame 0.5 s on.
+    let data = synth(dir.path(), 9711, 4.0);
+    let eval = |samples: Option<usize>, out: &str| {
+        let mut args: Vec<String> = [
+            "eval",
+            "forecast",
+            "--data",
+            &path(&data),
+            "--horizons",
+            "0.5",
+            "--out",
+            &path(&dir.path().join(out)),
+            "--set",
+            "sensors=[lidar]",
+            "--set",
+            "methods=[model,latent_ego_warp]",
+            "--json",
+        ]
+        .map(String::from)
+        .to_vec();
+        if let Some(k) = samples {
+            args.extend(["--samples".into(), k.to_string()]);
+        }
+        let output = bevworld_owned(&args);
+        assert!(output.status.success(), "{}", text(&output));
+        let table: serde_json::Value =
+            serde_json::from_slice(&output.stdout).expect("one JSON object");
+        table
+    };
+    let single = eval(None, "single");
+    let drawn = eval(Some(3), "drawn");
+    assert_eq!(drawn["samples"], 3, "the draws are recorded: {drawn}");
+    assert_eq!(drawn["contexts"], 4, "{drawn}");
+    let (one, three) = (&single["horizons"][0], &drawn["horizons"][0]);
+    assert_eq!(
+        one["model"]["chamfer"], three["model"]["chamfer"],
+        "the model row stays the point forecast, draw 0"
+    );
+    assert!(one.get("model_draws").is_none() && one.get("model_best_of_3").is_none());
+    let chamfer = |method: &str| {
+        three[method]["chamfer"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{method}: {three}"))
+    };
+    // The best of three is at most every draw's Chamfer, so at most draw 0's and their mean.
+    assert!(chamfer("model_best_of_3") <= chamfer("model"), "{three}");
+    assert!(
+        chamfer("model_best_of_3") <= chamfer("model_draws"),
+        "{three}"
+    );
+    let points = |method: &str| three[method]["agents"]["moving_vehicles"]["points"].clone();
+    assert_eq!(
+        points("model_best_of_3"),
+        points("model"),
+        "the same true points"
+    );
+    assert_eq!(
+        points("model_draws").as_u64(),
+        points("model").as_u64().map(|p| 3 * p),
+        "every draw's, pooled"
+    );
+    // One forecast is written per context: the point forecast.
+    assert_eq!(context_folders(&dir.path().join("drawn")).len(), 5);
+}
+
 /// Files of the dataset recorded after `after_us`, each replaced by noise of its own kind.
 fn scramble_after(data: &Path, after_us: i64) -> usize {
     let table: serde_json::Value = serde_json::from_slice(
@@ -348,6 +416,13 @@ fn the_forecast_graph_refuses_actions_and_horizons_it_cannot_forecast() {
     assert_eq!(output.status.code(), Some(2));
     assert!(
         text(&output).contains("shrink") && text(&output).contains("tau -0.25"),
+        "{}",
+        text(&output)
+    );
+    let output = check("rollout.samples=0");
+    assert_eq!(output.status.code(), Some(2));
+    assert!(
+        text(&output).contains("samples") && text(&output).contains("1 (the point forecast)"),
         "{}",
         text(&output)
     );

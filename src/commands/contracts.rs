@@ -19,6 +19,7 @@ pub const EVAL_FORECAST: Contract = Contract {
         "actions",
         "log_future",
         "steps",
+        "samples",
         "horizons",
         "shrink",
     ],

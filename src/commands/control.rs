@@ -268,7 +268,7 @@ fn forecast_group(
         let sweep = rendered
             .take()
             .into_iter()
-            .filter(|r| r.view.method.name() == args.method)
+            .filter(|r| r.view.method.name() == args.method && r.view.sample == 0)
             .find_map(|r| r.lidar.as_ref().map(|cloud| cloud.ego_returns()))
             .with_context(|| format!("{}: the forecast rendered no sweep", forecasting()))?;
         forecasts.push(

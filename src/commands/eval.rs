@@ -51,6 +51,12 @@ pub struct ForecastEvalArgs {
     /// DDIM steps (default: the graph's).
     #[arg(long)]
     pub steps: Option<usize>,
+    /// Draws of the model per forecast, K (default: the graph's, one). Beside the point
+    /// forecast (draw 0), the table gains each draw's mean and the best of the first 4, 8, …
+    /// and K draws. Each draw is a sampling run and a render: with `--set sensors=[lidar]`
+    /// only the sweeps, which the Chamfer and the agent scores read, are rendered.
+    #[arg(long)]
+    pub samples: Option<usize>,
     /// Horizons in seconds, e.g. 0.5,1,3 (default: the graph's).
     #[arg(long, value_delimiter = ',')]
     pub horizons: Vec<f64>,
@@ -558,6 +564,9 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
     if let Some(steps) = args.steps {
         set.push(format!("steps={steps}"));
     }
+    if let Some(samples) = args.samples {
+        set.push(format!("samples={samples}"));
+    }
     if !args.horizons.is_empty() {
         let list: Vec<String> = args.horizons.iter().map(f64::to_string).collect();
         set.push(format!("horizons=[{}]", list.join(",")));
@@ -568,7 +577,7 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
     let scores = graph
         .collect::<bevworld_types::ScoreTable>("scores")
         .map_err(super::Refused::Graph)?;
-    let sampler: Vec<(&str, serde_json::Value)> = ["steps", "shrink"]
+    let sampler: Vec<(&str, serde_json::Value)> = ["steps", "samples", "shrink"]
         .into_iter()
         .map(|key| {
             (
@@ -616,6 +625,13 @@ fn forecast_command(args: &ForecastEvalArgs) -> Result<ExitCode> {
         let agents = bevworld_metrics::forecast_node::agents_markdown_of(&table);
         if !agents.is_empty() {
             println!("The agents, from the dataset's boxes (means over scenes):\n\n{agents}");
+        }
+        let draws = bevworld_metrics::forecast_node::draws_markdown_of(&table);
+        if !draws.is_empty() {
+            println!(
+                "The model's {} draws: each draw's mean, and the best of the first K (Chamfer: the smallest; agents: the draw that recalls most moving-vehicle points):\n\n{draws}",
+                table["samples"]
+            );
         }
     }
     Ok(ExitCode::SUCCESS)

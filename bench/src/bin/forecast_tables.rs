@@ -1,10 +1,11 @@
 //! The tables of a forecast evaluation, from its JSON (`bevworld eval forecast --json`, or a
-//! forecast graph's `scores.json`): the whole-scene scores per horizon and method, and the
-//! agents' split, as markdown. The pages quote these, generated from the figures, never typed.
+//! forecast graph's `scores.json`): the whole-scene scores per horizon and method, the
+//! agents' split, and with several draws of the model (`--samples K`) their mean and best of
+//! K, as markdown. The pages quote these, generated from the figures, never typed.
 //!
 //!   cargo run --release -p bevworld-bench --bin forecast_tables -- bench/results/forecast-test.json
 
-use bevworld_metrics::forecast_node::{agents_markdown_of, markdown_of};
+use bevworld_metrics::forecast_node::{agents_markdown_of, draws_markdown_of, markdown_of};
 
 fn main() {
     let Some(path) = std::env::args().nth(1) else {
@@ -25,5 +26,9 @@ fn main() {
     let agents = agents_markdown_of(&table);
     if !agents.is_empty() {
         println!("{agents}");
+    }
+    let draws = draws_markdown_of(&table);
+    if !draws.is_empty() {
+        println!("{draws}");
     }
 }

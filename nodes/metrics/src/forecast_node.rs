@@ -15,6 +15,10 @@
 //!   `agents.rs` (points on moving vehicles, on parked vehicles, the static rest), for every
 //!   method and both raw baselines, pooled over contexts and per scene.
 //!
+//! - `model_draws`, `model_best_of_K`: when the rollout drew K > 1 samples, every draw's mean
+//!   and the best of the first K' draws (`best_of.rs`): whole-scene Chamfer and the agent
+//!   scores. The `model` row stays the point forecast, draw 0.
+//!
 //! Views without a logged future are counted and left out. With `json`, the table is written
 //! in the shape `bevworld eval forecast --json` prints.
 
@@ -23,13 +27,14 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use crate::agents::{AgentSums, SplitTruth, split_truth};
+use crate::best_of::{DrawScore, best_chamfer, best_for_agents, best_of_counts};
 
 use bevworld_graph::{
     Figures, Inputs, KindSpec, Models, Node, NodeError, Outputs, ParamError, Port, Registry, Task,
 };
 use bevworld_types::{
-    BevFeatures, ForecastMethod, LatentStats, LatentStatsFile, RenderedFuture, ScoreTable,
-    SensorFrame,
+    BevFeatures, ForecastMethod, FutureView, LatentStats, LatentStatsFile, RenderedFuture,
+    ScoreTable, SensorFrame,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -136,6 +141,9 @@ pub struct ForecastMetrics {
     /// The last logged frames split by their boxes, by frame token: every method of a
     /// horizon is scored against the same split.
     splits: VecDeque<(String, Arc<SplitTruth>)>,
+    /// The model's draws of a (context, horizon) scored so far, with their numbers, until
+    /// all K are in.
+    draws: BTreeMap<(String, i64), Vec<(usize, DrawScore)>>,
 }
 
 /// How many split truths are kept: the methods of a context's horizons arrive together.
@@ -161,6 +169,136 @@ impl ForecastMetrics {
             .or_default()
             .entry(method.to_string())
             .or_default()
+    }
+
+    /// Scores one rendered view into its cells.
+    fn score(&mut self, rendered: &RenderedFuture) -> Result<(), NodeError> {
+        let view = &rendered.view;
+        let (horizon_s, ahead) = (view.horizon_s, view.frames_ahead);
+        let Some(truth) = view.truth.clone() else {
+            self.without_truth += 1;
+            return Ok(());
+        };
+        let point_forecast = view.sample == 0;
+        if view.method == ForecastMethod::Model && point_forecast {
+            self.contexts.insert(view.context.frame_token.clone());
+            self.sampling_ms.add(view.sampling_ms);
+            let latency = self
+                .latency_ms
+                .entry(view.context.frame_token.clone())
+                .or_insert((view.sampling_ms, 0.0));
+            latency.1 += rendered.render_ms;
+            // The raw-point baselines, once per (context, horizon), in the truth's ego frame.
+            let gt = points_moved(&truth, &bevworld_types::Pose::IDENTITY);
+            let copy_last = points_moved(&view.context, &bevworld_types::Pose::IDENTITY);
+            let truth_from_context =
+                truth.lidar.global_from_ego.inverse() * view.context.lidar.global_from_ego;
+            let ego_warp = points_moved(&view.context, &truth_from_context);
+            let scene = truth.scene_name.clone();
+            if let Some(c) = self.chamfer(&copy_last, &gt) {
+                self.cell(horizon_s, ahead, "copy_last")
+                    .add_chamfer(&scene, c);
+            }
+            if let Some(c) = self.chamfer(&ego_warp, &gt) {
+                self.cell(horizon_s, ahead, "ego_warp")
+                    .add_chamfer(&scene, c);
+            }
+            if let Some(split) = self.split(&truth) {
+                for (method, points) in [("copy_last", &copy_last), ("ego_warp", &ego_warp)] {
+                    let sums = crate::agents::score(&split, points, &self.roi);
+                    self.cell(horizon_s, ahead, method)
+                        .add_agents(&scene, &sums);
+                }
+            }
+        }
+        let method = view.method.name();
+        let drawn = view.method == ForecastMethod::Model && view.samples_in_forecast > 1;
+        if let Some(lidar) = &rendered.lidar {
+            let result = score_lidar(&truth, lidar, &self.roi);
+            let chamfer = if result.pred_points == 0 || result.gt_points == 0 {
+                self.empty_clouds += 1;
+                None
+            } else {
+                Some(result.chamfer)
+            };
+            let agents = self.split(&truth).map(|split| {
+                let forecast = crate::reconstruction_node::to_f64(lidar.ego_points());
+                crate::agents::score(&split, &forecast, &self.roi)
+            });
+            let scene = truth.scene_name.as_str();
+            if point_forecast {
+                let cell = self.cell(horizon_s, ahead, method);
+                if let Some(c) = chamfer {
+                    cell.add_chamfer(scene, c);
+                }
+                if let Some(sums) = &agents {
+                    cell.add_agents(scene, sums);
+                }
+            }
+            if drawn {
+                self.add_draw(view, scene, DrawScore { chamfer, agents });
+            }
+        }
+        if !point_forecast {
+            // A further draw is scored on its sweep only: the images and the latent are the
+            // point forecast's.
+            return Ok(());
+        }
+        if let Some(images) = &rendered.images {
+            let (psnr_db, ssim) =
+                score_images(&truth, images).map_err(|e| NodeError::item_from(&e))?;
+            let cell = self.cell(horizon_s, ahead, method);
+            cell.psnr_db.add(psnr_db);
+            cell.ssim.add(ssim);
+        }
+        if self.stats.is_some() {
+            let key = (
+                view.context.frame_token.clone(),
+                (horizon_s * 1e6).round() as i64,
+            );
+            self.latents
+                .entry(key)
+                .or_default()
+                .insert(view.method, Arc::clone(&view.latent));
+        }
+        Ok(())
+    }
+
+    /// Holds one draw's scores; once a (context, horizon) has all K, adds every draw to
+    /// `model_draws` and the best of the first K' to `model_best_of_K'`.
+    fn add_draw(&mut self, view: &FutureView, scene: &str, score: DrawScore) {
+        let key = (
+            view.context.frame_token.clone(),
+            (view.horizon_s * 1e6).round() as i64,
+        );
+        let held = self.draws.entry(key.clone()).or_default();
+        held.push((view.sample, score));
+        if held.len() < view.samples_in_forecast {
+            return;
+        }
+        let mut numbered = self.draws.remove(&key).unwrap_or_default();
+        numbered.sort_by_key(|(sample, _)| *sample);
+        let draws: Vec<DrawScore> = numbered.into_iter().map(|(_, score)| score).collect();
+        let (horizon_s, ahead) = (view.horizon_s, view.frames_ahead);
+        for draw in &draws {
+            let cell = self.cell(horizon_s, ahead, "model_draws");
+            if let Some(c) = draw.chamfer {
+                cell.add_chamfer(scene, c);
+            }
+            if let Some(sums) = &draw.agents {
+                cell.add_agents(scene, sums);
+            }
+        }
+        for count in best_of_counts(draws.len()) {
+            let first = &draws[..count];
+            let cell = self.cell(horizon_s, ahead, &format!("model_best_of_{count}"));
+            if let Some(c) = best_chamfer(first) {
+                cell.add_chamfer(scene, c);
+            }
+            if let Some(sums) = best_for_agents(first) {
+                cell.add_agents(scene, sums);
+            }
+        }
     }
 
     /// The logged frame split by its boxes; `None` when the dataset annotates nothing there.
@@ -375,6 +513,67 @@ pub fn agents_markdown_of(table: &serde_json::Value) -> String {
     )
 }
 
+/// The rows of the model's draws (`model_draws`, `model_best_of_K`) beside the point
+/// forecast and the two latent references, as markdown: whole-scene Chamfer and the agent
+/// scores, means over scenes. Empty when the forecasts had one draw.
+pub fn draws_markdown_of(table: &serde_json::Value) -> String {
+    let mut text = String::new();
+    let empty = Vec::new();
+    for row in table["horizons"].as_array().unwrap_or(&empty) {
+        let horizon = row["horizon_s"].as_f64().unwrap_or(f64::NAN);
+        let mut best_of: Vec<(usize, &str)> = row
+            .as_object()
+            .into_iter()
+            .flat_map(|fields| fields.keys())
+            .filter_map(|key| {
+                let count = key.strip_prefix("model_best_of_")?.parse().ok()?;
+                Some((count, key.as_str()))
+            })
+            .collect();
+        if best_of.is_empty() {
+            continue;
+        }
+        best_of.sort();
+        let methods = std::iter::once("model")
+            .chain(std::iter::once("model_draws"))
+            .chain(best_of.iter().map(|(_, key)| *key))
+            .chain(["latent_ego_warp", "oracle"]);
+        for method in methods {
+            let Some(cell) = row.get(method) else {
+                continue;
+            };
+            let value = |path: &[&str]| {
+                path.iter()
+                    .try_fold(cell, |v, key| v.get(*key))
+                    .and_then(serde_json::Value::as_f64)
+            };
+            let show = |path: &[&str], digits: usize| {
+                value(path).map_or("—".to_string(), |v| format!("{v:.digits$}"))
+            };
+            let scenes = |class: &str, metric: &str, digits: usize| {
+                let at = |stat: &str| show(&["agents", class, "over_scenes", metric, stat], digits);
+                format!("{} ± {}", at("mean"), at("std"))
+            };
+            text.push_str(&format!(
+                "| +{horizon} s | {method} | {} ± {} | {} | {} | {} | {} | {} |\n",
+                show(&["chamfer"], 3),
+                show(&["chamfer_scene_std"], 3),
+                scenes("moving_vehicles", "recall_1m", 2),
+                scenes("moving_vehicles", "recall_0.5m_above_ground", 2),
+                scenes("moving_vehicles", "chamfer_to_forecast", 2),
+                scenes("parked_vehicles", "recall_0.5m", 2),
+                scenes("static", "chamfer_to_forecast", 3),
+            ));
+        }
+    }
+    if text.is_empty() {
+        return text;
+    }
+    format!(
+        "| horizon | method | Chamfer (m²) | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) | parked: recall@0.5 m | static: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|---|\n{text}"
+    )
+}
+
 /// The nearest-rank percentile `q` of `values` (NaN when there are none).
 pub fn percentile(values: &[f64], q: f64) -> f64 {
     if values.is_empty() {
@@ -427,78 +626,7 @@ pub fn markdown_of(table: &serde_json::Value) -> String {
 
 impl Task for ForecastMetrics {
     fn process(&mut self, inputs: &Inputs, _: &mut Outputs) -> Result<(), NodeError> {
-        let rendered = inputs.get(&RENDERED)?;
-        let view = &rendered.view;
-        let (horizon_s, ahead) = (view.horizon_s, view.frames_ahead);
-        let Some(truth) = view.truth.clone() else {
-            self.without_truth += 1;
-            return Ok(());
-        };
-        if view.method == ForecastMethod::Model {
-            self.contexts.insert(view.context.frame_token.clone());
-            self.sampling_ms.add(view.sampling_ms);
-            let latency = self
-                .latency_ms
-                .entry(view.context.frame_token.clone())
-                .or_insert((view.sampling_ms, 0.0));
-            latency.1 += rendered.render_ms;
-            // The raw-point baselines, once per (context, horizon), in the truth's ego frame.
-            let gt = points_moved(&truth, &bevworld_types::Pose::IDENTITY);
-            let copy_last = points_moved(&view.context, &bevworld_types::Pose::IDENTITY);
-            let truth_from_context =
-                truth.lidar.global_from_ego.inverse() * view.context.lidar.global_from_ego;
-            let ego_warp = points_moved(&view.context, &truth_from_context);
-            let scene = truth.scene_name.clone();
-            if let Some(c) = self.chamfer(&copy_last, &gt) {
-                self.cell(horizon_s, ahead, "copy_last")
-                    .add_chamfer(&scene, c);
-            }
-            if let Some(c) = self.chamfer(&ego_warp, &gt) {
-                self.cell(horizon_s, ahead, "ego_warp")
-                    .add_chamfer(&scene, c);
-            }
-            if let Some(split) = self.split(&truth) {
-                for (method, points) in [("copy_last", &copy_last), ("ego_warp", &ego_warp)] {
-                    let sums = crate::agents::score(&split, points, &self.roi);
-                    self.cell(horizon_s, ahead, method)
-                        .add_agents(&scene, &sums);
-                }
-            }
-        }
-        let method = view.method.name();
-        if let Some(lidar) = &rendered.lidar {
-            let result = score_lidar(&truth, lidar, &self.roi);
-            if result.pred_points == 0 || result.gt_points == 0 {
-                self.empty_clouds += 1;
-            } else {
-                self.cell(horizon_s, ahead, method)
-                    .add_chamfer(&truth.scene_name, result.chamfer);
-            }
-            if let Some(split) = self.split(&truth) {
-                let forecast = crate::reconstruction_node::to_f64(lidar.ego_points());
-                let sums = crate::agents::score(&split, &forecast, &self.roi);
-                self.cell(horizon_s, ahead, method)
-                    .add_agents(&truth.scene_name, &sums);
-            }
-        }
-        if let Some(images) = &rendered.images {
-            let (psnr_db, ssim) =
-                score_images(&truth, images).map_err(|e| NodeError::item_from(&e))?;
-            let cell = self.cell(horizon_s, ahead, method);
-            cell.psnr_db.add(psnr_db);
-            cell.ssim.add(ssim);
-        }
-        if self.stats.is_some() {
-            let key = (
-                view.context.frame_token.clone(),
-                (horizon_s * 1e6).round() as i64,
-            );
-            self.latents
-                .entry(key)
-                .or_default()
-                .insert(view.method, Arc::clone(&view.latent));
-        }
-        Ok(())
+        self.score(inputs.get(&RENDERED)?)
     }
 
     fn finish(&mut self, out: &mut Outputs) -> Result<(), NodeError> {
@@ -550,6 +678,12 @@ impl Task for ForecastMetrics {
             let agents = agents_markdown_of(&table);
             if !agents.is_empty() {
                 println!("\nThe agents, from the dataset's boxes (means over scenes):\n\n{agents}");
+            }
+            let draws = draws_markdown_of(&table);
+            if !draws.is_empty() {
+                println!(
+                    "\nThe model's draws: each draw's mean, and the best of the first K:\n\n{draws}"
+                );
             }
         }
         if let Some(path) = &self.json {
@@ -633,6 +767,7 @@ fn build(params: &ForecastMetricsParams, models: &Models) -> Result<ForecastMetr
         without_truth: 0,
         empty_clouds: 0,
         splits: VecDeque::new(),
+        draws: BTreeMap::new(),
     })
 }
 
@@ -660,6 +795,12 @@ pub fn register(registry: &mut Registry) {
 #[cfg(test)]
 mod tests {
     use super::{ForecastMetricsParams, build, percentile};
+    use crate::reconstruction_node::score_lidar;
+    use bevworld_types::{
+        BevFeatures, ForecastMethod, FutureView, ObjectBox, Pose, RenderedFuture, SensorFrame,
+    };
+    use glam::DVec3;
+    use std::sync::Arc;
 
     #[test]
     fn the_table_gives_each_scenes_mean_and_the_spread_of_those_means_by_hand() {
@@ -682,6 +823,193 @@ mod tests {
         // The population spread of {2, 4}.
         assert_eq!(model["chamfer_scene_std"], 1.0);
         assert_eq!(model["scenes"], 2);
+    }
+
+    fn cloud(points: &[[f32; 3]]) -> bevworld_types::PointCloud {
+        bevworld_types::PointCloud {
+            points: points
+                .iter()
+                .map(|&[x, y, z]| bevworld_types::LidarPoint {
+                    x,
+                    y,
+                    z,
+                    intensity: 0.0,
+                    ring: 0,
+                })
+                .collect(),
+            ego_from_lidar: Pose::IDENTITY,
+            timestamp_us: 0,
+            global_from_ego: Pose::IDENTITY,
+            dropped_non_finite: 0,
+            source_file: String::new(),
+        }
+    }
+
+    fn frame(token: &str, points: &[[f32; 3]], boxes: Vec<ObjectBox>) -> Arc<SensorFrame> {
+        Arc::new(SensorFrame {
+            time_of_validity_us: 0,
+            sample_token: token.into(),
+            frame_token: token.into(),
+            scene_name: "scene".into(),
+            index_in_scene: 0,
+            keyframe: true,
+            global_from_ego: Pose::IDENTITY,
+            cameras: Vec::new(),
+            lidar: Arc::new(cloud(points)),
+            action: None,
+            boxes,
+        })
+    }
+
+    const CAR: [[f32; 3]; 4] = [
+        [9.0, 0.0, 1.0],
+        [10.0, 0.0, 1.0],
+        [11.0, 0.0, 1.0],
+        [10.0, 0.5, 1.2],
+    ];
+    const ROAD: [[f32; 3]; 4] = [
+        [30.0, 0.0, 0.0],
+        [32.0, 0.0, 0.0],
+        [34.0, 0.0, 0.0],
+        [20.0, -5.0, 0.0],
+    ];
+
+    /// The model's draw `sample` of `samples`, rendered as `points`, against a truth of a
+    /// car driving at 5 m/s (4 returns) and the road (4 returns).
+    fn draw(sample: usize, samples: usize, points: &[[f32; 3]]) -> RenderedFuture {
+        let moving_car = ObjectBox {
+            instance_token: "car".into(),
+            category: "vehicle.car".into(),
+            global_from_box: Pose::from_translation(DVec3::new(10.0, 0.0, 0.75)),
+            size: [2.0, 4.0, 1.5],
+            velocity: Some([5.0, 0.0]),
+            attributes: Vec::new(),
+            num_pts: 4,
+        };
+        let truth = frame("future", &[CAR, ROAD].concat(), vec![moving_car]);
+        let context = frame("context", &ROAD, Vec::new());
+        let latent = Arc::new(BevFeatures {
+            meta: bevworld_types::FrameMeta {
+                sample_token: "future".into(),
+                frame_token: "future".into(),
+                scene_name: "scene".into(),
+                time_of_validity_us: 0,
+                global_from_ego: Pose::IDENTITY,
+                keyframe: false,
+            },
+            grid: bevworld_types::BevGrid {
+                x_range: [-1.0, 1.0],
+                y_range: [-1.0, 1.0],
+                resolution: 2.0,
+                height: 1,
+                width: 1,
+            },
+            channels: vec!["c".into()],
+            data: vec![0.0],
+            model: "test".into(),
+            weights_hash: "none".into(),
+        });
+        RenderedFuture {
+            view: Arc::new(FutureView {
+                context,
+                horizon_s: 1.0,
+                frames_ahead: 2,
+                horizons_in_forecast: 1,
+                method: ForecastMethod::Model,
+                sample,
+                samples_in_forecast: samples,
+                latent,
+                rays: Arc::clone(&truth),
+                truth: Some(truth),
+                sampling_ms: 1.0,
+            }),
+            images: None,
+            lidar: Some(cloud(points)),
+            render_ms: 1.0,
+        }
+    }
+
+    #[test]
+    fn the_best_of_k_takes_the_smallest_chamfer_and_the_draw_that_keeps_the_moving_car() {
+        let params = ForecastMetricsParams {
+            roi: "4docc".into(),
+            model: None,
+            json: None,
+            print: false,
+        };
+        // Draw 0 (the point forecast) erases the car; draw 1 keeps it but moves the road 2 m;
+        // draw 2 puts one return 2.5 m beside the car.
+        let draws = [
+            ROAD.to_vec(),
+            [
+                CAR.to_vec(),
+                ROAD.iter().map(|p| [p[0], p[1] + 2.0, p[2]]).collect(),
+            ]
+            .concat(),
+            [ROAD.to_vec(), vec![[10.0, 2.5, 1.0]]].concat(),
+        ];
+        let mut metrics = build(&params, &bevworld_graph::Models::none()).expect("params");
+        let roi = crate::chamfer::Roi::preset("4docc").expect("roi");
+        let mut chamfers = Vec::new();
+        // Arriving out of order changes nothing: draws are taken by their number.
+        for sample in [0, 2, 1] {
+            let rendered = draw(sample, 3, &draws[sample]);
+            let truth = rendered.view.truth.clone().expect("truth");
+            let lidar = rendered.lidar.as_ref().expect("sweep");
+            chamfers.push((sample, score_lidar(&truth, lidar, &roi).chamfer));
+            metrics.score(&rendered).expect("scored");
+        }
+        chamfers.sort_by_key(|(sample, _)| *sample);
+        let chamfer: Vec<f64> = chamfers.into_iter().map(|(_, c)| c).collect();
+        let table = metrics.table();
+        let row = &table["horizons"][0];
+        let value = |method: &str, path: &[&str]| {
+            path.iter()
+                .try_fold(&row[method], |v, key| v.get(*key))
+                .and_then(serde_json::Value::as_f64)
+                .unwrap_or_else(|| panic!("{method} {path:?} in {row}"))
+        };
+        assert_eq!(row["contexts"], 1, "draws are no further contexts");
+        assert_eq!(
+            value("model", &["chamfer"]),
+            chamfer[0],
+            "the point forecast"
+        );
+        let mean = chamfer.iter().sum::<f64>() / 3.0;
+        assert!((value("model_draws", &["chamfer"]) - mean).abs() < 1e-12);
+        let smallest = chamfer.iter().copied().fold(f64::INFINITY, f64::min);
+        assert!(smallest < chamfer[0], "{chamfer:?}");
+        assert_eq!(value("model_best_of_3", &["chamfer"]), smallest);
+        let moving = ["agents", "moving_vehicles", "recall_1m"];
+        assert_eq!(
+            value("model", &moving),
+            0.0,
+            "the point forecast erased the car"
+        );
+        assert_eq!(
+            value("model_best_of_3", &moving),
+            1.0,
+            "draw 1 keeps all four returns"
+        );
+        assert!(
+            (value("model_draws", &moving) - 4.0 / 12.0).abs() < 1e-12,
+            "4 of 12, pooled"
+        );
+        assert!(
+            row.get("copy_last").is_some(),
+            "the raw baselines once, with draw 0"
+        );
+        assert!(
+            metrics.draws.is_empty(),
+            "nothing held once all draws are in"
+        );
+
+        // One draw: no best-of rows.
+        let mut single = build(&params, &bevworld_graph::Models::none()).expect("params");
+        single.score(&draw(0, 1, &draws[0])).expect("scored");
+        let table = single.table();
+        let row = table["horizons"][0].as_object().expect("row");
+        assert!(row.keys().all(|k| !k.starts_with("model_")), "{row:?}");
     }
 
     #[test]

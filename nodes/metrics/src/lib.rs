@@ -4,6 +4,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod agents;
+pub mod best_of;
 pub mod chamfer;
 pub mod detection;
 pub mod fid;

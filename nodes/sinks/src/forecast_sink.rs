@@ -283,7 +283,8 @@ impl Sink for ForecastSink {
         let rendered = inputs.get(&RENDERED)?;
         let view = &rendered.view;
         self.views += 1;
-        if view.method != self.method {
+        // One forecast is written: the method's point forecast, not the model's further draws.
+        if view.method != self.method || view.sample != 0 {
             return Ok(());
         }
         self.views_written += 1;

@@ -115,6 +115,8 @@ fn rendered(
         frames_ahead: (horizon_s / 0.5).round() as usize,
         horizons_in_forecast: horizons,
         method,
+        sample: 0,
+        samples_in_forecast: 1,
         latent: latent(scene, token),
         rays: Arc::clone(&future),
         truth: truth.then_some(future),

@@ -86,6 +86,10 @@ pub struct ForecastHorizon {
     pub horizon_s: f64,
     pub frames_ahead: usize,
     pub latents: Vec<(ForecastMethod, Arc<BevFeatures>)>,
+    /// The model's further draws from other noise, when the rollout was asked for more than
+    /// one sample (`samples: K`): draws 1 to K−1. Draw 0 is the `Model` latent above, the
+    /// point forecast every consumer reads.
+    pub samples: Vec<Arc<BevFeatures>>,
 }
 
 impl ForecastHorizon {
@@ -107,7 +111,7 @@ pub struct Forecast {
     /// The actions into each future frame, one per frame up to the model's last.
     pub future_actions: Vec<EgoAction>,
     pub horizons: Vec<ForecastHorizon>,
-    /// Milliseconds the sampler took.
+    /// Milliseconds the sampler took, every draw together.
     pub sampling_ms: f64,
 }
 
@@ -128,6 +132,12 @@ pub struct FutureView {
     /// How many horizons the forecast has, so that a consumer knows when one is complete.
     pub horizons_in_forecast: usize,
     pub method: ForecastMethod,
+    /// Which of the model's draws this is: 0 for the point forecast (and for every baseline),
+    /// 1 to K−1 for the further draws of `ForecastHorizon::samples`. Consumers that show or
+    /// write one forecast read draw 0 only; the metrics score the best of the K.
+    pub sample: usize,
+    /// How many draws of the model each horizon has (K; 1 without `samples`).
+    pub samples_in_forecast: usize,
     pub latent: Arc<BevFeatures>,
     /// The logged future frame (when it is the truth), or the rig at the predicted pose: the
     /// context frame's cameras and beam directions, moved there.

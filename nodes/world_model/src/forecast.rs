@@ -33,6 +33,13 @@ pub fn seeded_noise(seed: u64, shape: [usize; 5], device: &Device) -> Tensor<5> 
     )
 }
 
+/// The noise seed of a forecast's draw `draw` (draw 0 is the sampler's own seed). The draws
+/// lie 2³² apart, far from the seeds one draw takes for η's fresh noise (`seed + 1 + step`),
+/// so no two draws share noise.
+pub fn draw_seed(seed: u64, draw: usize) -> u64 {
+    seed.wrapping_add((draw as u64) << 32)
+}
+
 /// How a forecast runs its condition frames through the network.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ContextPasses {

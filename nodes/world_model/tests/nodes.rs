@@ -240,6 +240,7 @@ fn rollout_params(actions: &str, horizons: &[f64]) -> DiffusionRolloutParams {
         eta: 0.0,
         spacing: Default::default(),
         seed: 0,
+        samples: 1,
         shrink: None,
         actions: actions.into(),
         action_list: None,
@@ -638,6 +639,50 @@ fn the_rollout_is_deterministic_for_a_seed_and_moves_the_pose_by_its_actions() {
     assert_ne!(model.data, copy.data);
 }
 
+#[test]
+fn further_draws_leave_the_point_forecast_as_it_was_and_differ_from_it() {
+    let single = diffusion_rollout::build(&rollout_params("keep", &[1.0, 3.0]), &shipped())
+        .expect("node")
+        .forecast(&window(1))
+        .expect("forecast");
+    let mut params = rollout_params("keep", &[1.0, 3.0]);
+    params.samples = 3;
+    let drawn = diffusion_rollout::build(&params, &shipped())
+        .expect("node")
+        .forecast(&window(1))
+        .expect("forecast");
+    for (one, three) in single.horizons.iter().zip(&drawn.horizons) {
+        assert!(one.samples.is_empty());
+        assert_eq!(
+            three.samples.len(),
+            2,
+            "draws 1 and 2 at {} s",
+            three.horizon_s
+        );
+        let point = three.latent(ForecastMethod::Model).expect("model");
+        assert_eq!(
+            point.data,
+            one.latent(ForecastMethod::Model).expect("model").data,
+            "draw 0 is the forecast without draws"
+        );
+        for (k, draw) in three.samples.iter().enumerate() {
+            assert_eq!(draw.meta, point.meta, "the same future frame");
+            assert!(draw.data.iter().all(|v| v.is_finite()));
+            assert_ne!(draw.data, point.data, "draw {} has noise of its own", k + 1);
+        }
+        assert_ne!(three.samples[0].data, three.samples[1].data);
+    }
+    for samples in [0, diffusion_rollout::MAX_SAMPLES + 1] {
+        let mut params = rollout_params("keep", &[1.0]);
+        params.samples = samples;
+        let (message, _) = refusal(&params);
+        assert!(
+            message.starts_with("samples") && message.contains(&samples.to_string()),
+            "{message}"
+        );
+    }
+}
+
 fn frame(scene: &str, time_s: f64) -> Arc<SensorFrame> {
     let pose = Pose::from_translation(DVec3::new(5.0 * time_s, 0.0, 0.0));
     let time = (time_s * 1e6).round() as i64;
@@ -695,6 +740,7 @@ fn forecast(scene: &str, time_s: f64, ahead: usize, actions_from: &str, x: f64) 
             horizon_s: 0.5 * ahead as f64,
             frames_ahead: ahead,
             latents: vec![(ForecastMethod::Model, Arc::new(model))],
+            samples: Vec::new(),
         }],
         sampling_ms: 1.0,
     }
@@ -730,6 +776,57 @@ fn a_replayed_forecast_waits_for_its_logged_future_and_is_rendered_along_it() {
     assert_eq!(ready[1].method, ForecastMethod::Oracle);
     assert_eq!(ready[1].latent.meta.time_of_validity_us, 2_000_000);
     assert_eq!(ready[0].context.time_of_validity_us, 1_000_000);
+}
+
+#[test]
+fn each_draw_of_the_model_is_a_view_along_the_same_rays_the_point_forecast_first() {
+    let mut views = FutureViews::new(
+        vec![ForecastMethod::Model, ForecastMethod::Oracle],
+        0.05,
+        64,
+    );
+    for k in 0..5 {
+        views.push_frame(frame("a", 0.5 * k as f64));
+    }
+    views.push_latent(latent("a", 2.0));
+    let mut with_draws = forecast("a", 1.0, 2, "log", 10.0);
+    let point = Arc::clone(&with_draws.horizons[0].latents[0].1);
+    let further: Vec<Arc<BevFeatures>> = (0..2)
+        .map(|d| {
+            let mut draw = BevFeatures::clone(&point);
+            draw.data.iter_mut().for_each(|v| *v = d as f32 + 1.0);
+            Arc::new(draw)
+        })
+        .collect();
+    with_draws.horizons[0].samples = further.clone();
+    views.push_forecast(with_draws);
+    let ready = views.ready(false);
+    let numbered: Vec<(ForecastMethod, usize, usize)> = ready
+        .iter()
+        .map(|v| (v.method, v.sample, v.samples_in_forecast))
+        .collect();
+    assert_eq!(
+        numbered,
+        vec![
+            (ForecastMethod::Model, 0, 3),
+            (ForecastMethod::Model, 1, 3),
+            (ForecastMethod::Model, 2, 3),
+            (ForecastMethod::Oracle, 0, 3),
+        ]
+    );
+    assert!(
+        Arc::ptr_eq(&ready[0].latent, &point),
+        "draw 0 is the point forecast"
+    );
+    assert!(Arc::ptr_eq(&ready[1].latent, &further[0]));
+    assert!(Arc::ptr_eq(&ready[2].latent, &further[1]));
+    let truth = ready[0].truth.as_ref().expect("truth");
+    for view in &ready[..3] {
+        assert!(
+            Arc::ptr_eq(&view.rays, truth),
+            "every draw along the logged rays"
+        );
+    }
 }
 
 #[test]

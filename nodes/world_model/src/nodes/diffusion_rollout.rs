@@ -26,6 +26,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::WorldModelConfig;
 use crate::ddim::{DdimConfig, DdimError, Spacing};
 use crate::ego_warp::PlanarMotion;
+use crate::forecast::draw_seed;
 use crate::manoeuvre::{Manoeuvre, constant_turn, current_motion};
 use crate::nodes::model_params::WorldModelParams;
 use crate::rollout::{LoadedWorldModel, Rollout};
@@ -54,6 +55,11 @@ pub struct DiffusionRolloutParams {
     pub spacing: Spacing,
     #[serde(default)]
     pub seed: u64,
+    /// Draws of the model per forecast, K: the point forecast (from `seed`) and K − 1 more
+    /// from other noise (`draw_seed`), for the metrics' best of K. Each draw costs a whole
+    /// sampling run; the render and the metrics then see K model views per horizon.
+    #[serde(default = "one")]
+    pub samples: usize,
     /// Soft-threshold the sampled residual over the ego warp, `{tau, fade_s}`
     /// (`shrink.rs`): the static world is moved, not re-predicted. Residual models only.
     #[serde(default)]
@@ -165,7 +171,12 @@ pub struct RolloutPlan {
     pub actions: FutureActions,
     pub horizons: Vec<(f64, usize)>,
     pub sampler: DdimConfig,
+    /// Draws per forecast (`samples`).
+    pub samples: usize,
 }
+
+/// Most draws one forecast may ask for: each is a whole sampling run.
+pub const MAX_SAMPLES: usize = 64;
 
 pub fn plan(params: &DiffusionRolloutParams, models: &Models) -> Result<RolloutPlan, ParamError> {
     let (config, _) = params.model.check(models)?;
@@ -257,6 +268,15 @@ pub fn plan(params: &DiffusionRolloutParams, models: &Models) -> Result<RolloutP
             ),
         ));
     }
+    if params.samples == 0 || params.samples > MAX_SAMPLES {
+        return Err(ParamError::field(
+            "samples",
+            format!(
+                "{} draws per forecast: must be 1 (the point forecast) to {MAX_SAMPLES}",
+                params.samples
+            ),
+        ));
+    }
     let sampler = DdimConfig {
         steps: params.steps,
         eta: params.eta,
@@ -279,6 +299,7 @@ pub fn plan(params: &DiffusionRolloutParams, models: &Models) -> Result<RolloutP
         actions,
         horizons,
         sampler,
+        samples: params.samples,
     })
 }
 
@@ -317,14 +338,21 @@ impl DiffusionRolloutNode {
         };
         let context: Vec<Vec<f32>> = window.context.iter().map(|l| l.data.clone()).collect();
         let started = Instant::now();
-        let output = rollout
-            .run(
-                &context,
-                &window.context_actions,
-                &future_actions,
-                &self.plan.sampler,
-            )
-            .map_err(|error| format!("frame {}: {error}", current.meta.frame_token))?;
+        let run = |sampler: &DdimConfig| {
+            rollout
+                .run(&context, &window.context_actions, &future_actions, sampler)
+                .map_err(|error| format!("frame {}: {error}", current.meta.frame_token))
+        };
+        let output = run(&self.plan.sampler)?;
+        // The further draws: the same context and actions, other noise.
+        let mut draws = Vec::with_capacity(self.plan.samples - 1);
+        for draw in 1..self.plan.samples {
+            let sampler = DdimConfig {
+                seed: draw_seed(self.plan.sampler.seed, draw),
+                ..self.plan.sampler.clone()
+            };
+            draws.push(run(&sampler)?.future);
+        }
         let sampling_ms = started.elapsed().as_secs_f64() * 1e3;
 
         let mut current_from_future = PlanarMotion::default();
@@ -369,10 +397,15 @@ impl DiffusionRolloutNode {
                         output.ego_warped[k].clone(),
                     ));
                 }
+                let samples = draws
+                    .iter()
+                    .map(|future| latent(ForecastMethod::Model, future[k].clone()).1)
+                    .collect();
                 ForecastHorizon {
                     horizon_s,
                     frames_ahead,
                     latents,
+                    samples,
                 }
             })
             .collect();

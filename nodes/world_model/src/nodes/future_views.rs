@@ -8,6 +8,8 @@
 //!   (`virtual_frame`). It has no truth.
 //! - `oracle` views carry the tokenizer's latent of the true future frame (from `latent`).
 //! - Baselines are rendered only where there is a truth to score them against.
+//! - A forecast with several draws of the model (`diffusion_rollout`'s `samples`) gives one
+//!   `model` view per draw, numbered by `sample`, the point forecast first.
 //!
 //! It sees the frames only after the forecast is made, so the forecast cannot depend on them.
 //! Frames are held from the oldest context still waiting onwards, never more than
@@ -290,17 +292,29 @@ impl FutureViews {
                         model.meta.frame_token.clone(),
                     )),
                 };
-                views.push(FutureView {
-                    context: Arc::clone(&context),
-                    horizon_s: horizon.horizon_s,
-                    frames_ahead: horizon.frames_ahead,
-                    horizons_in_forecast: total,
-                    method,
-                    latent,
-                    rays,
-                    truth: truth.clone(),
-                    sampling_ms: forecast.sampling_ms,
-                });
+                // The model's further draws follow its point forecast, along the same rays.
+                let draws: Vec<Arc<BevFeatures>> = match method {
+                    ForecastMethod::Model => std::iter::once(latent)
+                        .chain(horizon.samples.iter().cloned())
+                        .collect(),
+                    _ => vec![latent],
+                };
+                let samples_in_forecast = 1 + horizon.samples.len();
+                for (sample, latent) in draws.into_iter().enumerate() {
+                    views.push(FutureView {
+                        context: Arc::clone(&context),
+                        horizon_s: horizon.horizon_s,
+                        frames_ahead: horizon.frames_ahead,
+                        horizons_in_forecast: total,
+                        method,
+                        sample,
+                        samples_in_forecast,
+                        latent,
+                        rays: Arc::clone(&rays),
+                        truth: truth.clone(),
+                        sampling_ms: forecast.sampling_ms,
+                    });
+                }
             }
         }
         Some(Some((views, without_truth)))
