@@ -555,12 +555,13 @@ pub fn draws_markdown_of(table: &serde_json::Value) -> String {
                 format!("{} ± {}", at("mean"), at("std"))
             };
             text.push_str(&format!(
-                "| +{horizon} s | {method} | {} ± {} | {} | {} | {} | {} | {} |\n",
+                "| +{horizon} s | {method} | {} ± {} | {} | {} | {} | {} | {} | {} |\n",
                 show(&["chamfer"], 3),
                 show(&["chamfer_scene_std"], 3),
                 scenes("moving_vehicles", "recall_1m", 2),
                 scenes("moving_vehicles", "recall_0.5m_above_ground", 2),
                 scenes("moving_vehicles", "chamfer_to_forecast", 2),
+                show(&["agents", "moving_boxes", "precision_0.5m"], 2),
                 scenes("parked_vehicles", "recall_0.5m", 2),
                 scenes("static", "chamfer_to_forecast", 3),
             ));
@@ -570,7 +571,7 @@ pub fn draws_markdown_of(table: &serde_json::Value) -> String {
         return text;
     }
     format!(
-        "| horizon | method | Chamfer (m²) | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) | parked: recall@0.5 m | static: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|---|\n{text}"
+        "| horizon | method | Chamfer (m²) | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) | moving: precision in their boxes | parked: recall@0.5 m | static: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|---|---|\n{text}"
     )
 }
 
