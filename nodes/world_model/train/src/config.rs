@@ -10,6 +10,8 @@ use bevworld_training::{ConfigProblem, OptimizerConfig, require_count, require_p
 use bevworld_world_model::DdimConfig;
 use serde::{Deserialize, Serialize};
 
+use crate::moving_weight::MovingWeight;
+
 /// Which frames of a scene a stage learns from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -107,6 +109,15 @@ pub struct TrainWorldModelConfig {
     pub stages: Vec<StageConfig>,
     pub validation: ValidationConfig,
     pub checkpoint_every: usize,
+    /// Count the cells where the future moves over the ego warp more in the loss
+    /// (`moving_weight.rs`); absent: the plain L1. Residual models only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub moving_weight: Option<MovingWeight>,
+    /// Start from these trained weights (a world model's `.bpk`, with its `.meta.json`)
+    /// instead of the seeded initialisation: a fine-tune. They must be of this model, on
+    /// this tokenizer's latents, with the training cache's action statistics.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<PathBuf>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -221,6 +232,9 @@ impl TrainWorldModelConfig {
         require_count(&mut problems, "validation.windows", self.validation.windows);
         require_count(&mut problems, "validation.every", self.validation.every);
         require_count(&mut problems, "checkpoint_every", self.checkpoint_every);
+        if let Some(weight) = &self.moving_weight {
+            problems.extend(weight.problems("moving_weight"));
+        }
         // The scenes learnt from and the scenes scored on never share a seed.
         let learnt = [
             ("training", Some(&self.train)),

@@ -124,6 +124,19 @@ pub fn effective_configs(
             message: problems.join("; "),
         });
     }
+    // The weight reads the residual over the warp; a model of the latent itself has none.
+    if config.moving_weight.is_some() && !model.residual_over_ego_warp {
+        return Err(RunError::Config(ConfigError::Invalid {
+            path: request.config.display().to_string(),
+            problems: vec![bevworld_training::ConfigProblem::new(
+                "moving_weight",
+                format!(
+                    "model '{}' predicts latents, not a residual over the ego warp: there is no moving residual to weight",
+                    model.name
+                ),
+            )],
+        }));
+    }
     Ok((config, model))
 }
 
@@ -285,6 +298,12 @@ pub fn train(
     )?;
     if request.resume && has_checkpoint {
         trainer = trainer.resume(&request.out)?;
+    } else if let Some(init) = &config.init {
+        trainer = trainer.start_from(
+            init,
+            (&tokenizer.model, &tokenizer.weights_hash),
+            &action_stats,
+        )?;
     }
     let total = config.total_steps();
     let stop = request.until.unwrap_or(total).min(total);

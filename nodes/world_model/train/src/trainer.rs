@@ -21,6 +21,7 @@ use bevworld_training::{
 };
 use bevworld_types::SplitMix64;
 use bevworld_world_model::ddim::noisy_and_target;
+use bevworld_world_model::weights::load_weights;
 use bevworld_world_model::{
     ActionStats, DdimConfig, ForecastInputs, LatentGrid, NoiseSchedule, WorldModel,
     WorldModelConfig, forecast,
@@ -143,6 +144,12 @@ pub enum TrainError {
     Log(#[from] MetricsLogError),
     #[error(transparent)]
     Sampler(#[from] bevworld_world_model::ddim::DdimError),
+    #[error("init: {0}")]
+    Init(#[from] bevworld_world_model::weights::WorldModelWeightsError),
+    #[error(
+        "init {path}: its actions were normalised with other statistics than this training cache's: fine-tune on the data it was trained on"
+    )]
+    InitActions { path: std::path::PathBuf },
 }
 
 /// The training data, already cut where it can be.
@@ -315,6 +322,36 @@ impl WorldModelTrainer {
         Ok(self)
     }
 
+    /// Starts from trained weights (`init`) instead of the seeded initialisation: the model
+    /// and its moving average both begin there; the optimiser's moments start at zero. The
+    /// weights must be of this model, trained on `tokenizer`'s latents (name, weights digest)
+    /// with `action_stats`, or the actions would be normalised otherwise than they learnt.
+    pub fn start_from(
+        mut self,
+        path: &Path,
+        tokenizer: (&str, &str),
+        action_stats: &ActionStats,
+    ) -> Result<Self, TrainError> {
+        let inner = self.device.clone().inner();
+        let loaded = load_weights(&self.model_config, path, Some(tokenizer), &inner)?;
+        if loaded.meta.action_stats != *action_stats {
+            return Err(TrainError::InitActions {
+                path: path.to_path_buf(),
+            });
+        }
+        let name = self.model_config.name.clone();
+        self.model = load_module(
+            self.model_config.init(&self.device),
+            "world model",
+            &name,
+            path,
+        )?;
+        if self.weight_average.is_some() {
+            self.weight_average = Some(loaded.model);
+        }
+        Ok(self)
+    }
+
     /// How many windows each stage draws from.
     pub fn windows_per_stage(&self) -> Vec<usize> {
         self.stage_windows.iter().map(Vec::len).collect()
@@ -377,6 +414,7 @@ impl WorldModelTrainer {
             &self.device,
         );
         let target = self.model_config.diffusion.target;
+        let moving_weight = self.config.moving_weight;
         let batch = self.config.batch as f64;
         let outcomes = parallel_map(
             &micro,
@@ -399,6 +437,8 @@ impl WorldModelTrainer {
                     .collect();
                 let noise = Tensor::<5>::from_data(TensorData::new(noise, dims), device);
                 let levels: Vec<usize> = draws.iter().map(|d| d.level).collect();
+                // The clean residual, before noise: where the future moves over the warp.
+                let clean = inputs.diffused.clone();
                 let (noisy, wanted) =
                     noisy_and_target(schedule, target, inputs.diffused, noise, &levels);
                 let frame_levels: Vec<f32> = levels
@@ -417,10 +457,12 @@ impl WorldModelTrainer {
                     Some(inputs.warped),
                 );
                 // The mean over the batch: each micro-batch's mean weighted by its share.
-                let loss = (output - wanted)
-                    .abs()
-                    .mean()
-                    .mul_scalar(draws.len() as f64 / batch);
+                let error = (output - wanted).abs();
+                let mean = match &moving_weight {
+                    Some(weight) => weight.loss(error, clean),
+                    None => error.mean(),
+                };
+                let loss = mean.mul_scalar(draws.len() as f64 / batch);
                 let value = scalar(loss.clone());
                 let grads = GradientsParams::from_grads(loss.backward(), model);
                 (value, grads)

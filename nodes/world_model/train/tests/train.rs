@@ -666,5 +666,118 @@ fn ablation_overrides_reach_the_model_config_and_inconsistent_ones_are_refused()
     }))
     .expect_err("a fade without a residual");
     assert!(error.to_string().contains("ego_warp_fade_s"), "{error}");
+    // A loss weighted where the residual moves needs a residual.
+    let weighted = std::fs::read_to_string(&config).expect("read")
+        + "moving_weight: {extra: 4.0, threshold: 0.25}\n";
+    std::fs::write(&config, weighted).expect("write");
+    let (train, _) = effective_configs(&request(Overrides::default())).expect("weighted");
+    assert_eq!(
+        train.moving_weight.map(|w| (w.extra, w.threshold)),
+        Some((4.0, 0.25))
+    );
+    let error = effective_configs(&request(Overrides {
+        residual_over_ego_warp: Some(false),
+        ..Overrides::default()
+    }))
+    .expect_err("a moving weight without a residual");
+    assert!(
+        error.to_string().contains("moving_weight") && error.to_string().contains("residual"),
+        "{error}"
+    );
     assert!(!dir.path().join("run").exists(), "refused before writing");
+}
+
+#[test]
+fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_data() {
+    use bevworld_world_model::WeightsMeta;
+    use bevworld_world_model::weights::save_weights;
+    use bevworld_world_model_train::moving_weight::MovingWeight;
+    let dir = tempfile::tempdir().expect("dir");
+    let mut trained = trainer(dir.path(), 2);
+    for _ in 0..2 {
+        trained.train_step().expect("step");
+    }
+    let (_, actions) = training_data(dir.path());
+    let path = dir.path().join("trained.bpk");
+    let meta = |action_stats: ActionStats| WeightsMeta {
+        model: small_model().name,
+        tokenizer_model: "tokenizer-test".into(),
+        tokenizer_weights_hash: "abc".into(),
+        action_stats,
+        steps: 2,
+        command: "test".into(),
+    };
+    save_weights(&trained.shipped_model(), &meta(actions.clone()), &path).expect("save");
+    let fresh = trainer(dir.path(), 2);
+    assert_ne!(parameters(&fresh), parameters(&trained), "a seeded start");
+    let mut tuned = trainer(dir.path(), 2)
+        .start_from(&path, ("tokenizer-test", "abc"), &actions)
+        .expect("start from the weights");
+    assert_eq!(
+        parameters(&tuned),
+        parameters(&trained),
+        "the moving average starts there"
+    );
+    // And trains on, under the weighted loss.
+    let mut config = train_config(dir.path());
+    config.moving_weight = Some(MovingWeight {
+        extra: 4.0,
+        threshold: 0.25,
+    });
+    let report = tuned.train_step().expect("step");
+    assert!(report.loss.is_finite());
+    let (data, _) = training_data(dir.path());
+    let mut weighted = WorldModelTrainer::new(
+        config,
+        small_model(),
+        actions.clone(),
+        data,
+        &Device::flex().autodiff(),
+        2,
+    )
+    .expect("trainer")
+    .start_from(&path, ("tokenizer-test", "abc"), &actions)
+    .expect("start");
+    let report = weighted.train_step().expect("weighted step");
+    assert!(report.loss.is_finite() && report.grad_norm > 0.0);
+    // Another tokenizer's latents, or other action statistics: refused, by what differs.
+    let error = trainer(dir.path(), 2)
+        .start_from(&path, ("tokenizer-test", "def"), &actions)
+        .err()
+        .expect("another tokenizer");
+    assert!(error.to_string().starts_with("init:"), "{error}");
+    let mut other = actions.clone();
+    other.mean[0] += 1.0;
+    save_weights(&trained.shipped_model(), &meta(other), &path).expect("save");
+    let error = trainer(dir.path(), 2)
+        .start_from(&path, ("tokenizer-test", "abc"), &actions)
+        .err()
+        .expect("other action statistics");
+    assert!(
+        error.to_string().contains("action") || error.to_string().contains("statistics"),
+        "{error}"
+    );
+}
+
+#[test]
+fn the_fine_tune_configs_differ_from_each_other_only_in_the_loss() {
+    let read = |name: &str| {
+        let path = repo().join("configs/models").join(name);
+        TrainWorldModelConfig::from_yaml_file(&path).expect("a valid config")
+    };
+    let moving = read("finetune-world-model-moving-tiny.yaml");
+    let mut plain = read("finetune-world-model-plain-tiny.yaml");
+    let shipped = read("train-world-model-tiny.yaml");
+    assert_eq!(
+        moving.init.as_deref(),
+        Some(Path::new("nodes/world_model/weights/world-model-tiny.bpk"))
+    );
+    assert!(moving.moving_weight.is_some() && plain.moving_weight.is_none());
+    plain.moving_weight = moving.moving_weight;
+    assert_eq!(plain, moving, "the ablation changes the loss alone");
+    // The same data and scenes as the weights they start from.
+    assert_eq!(
+        (&moving.train, &moving.val, &moving.test, &moving.branches),
+        (&shipped.train, &shipped.val, &shipped.test, &shipped.branches)
+    );
 }
