@@ -49,6 +49,26 @@ pub enum ActionStatsError {
 }
 
 impl ActionStats {
+    /// Whether `other` is the same statistics, up to the last bits that writing them to the
+    /// weights' JSON and reading them back may change (serde_json's reading of a float can
+    /// land one unit in the last place off the value written).
+    pub fn matches(&self, other: &ActionStats) -> bool {
+        let close = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .all(|(x, y)| (x - y).abs() <= 1e-12 * x.abs().max(y.abs()).max(1e-300))
+        };
+        let ranges = match (&self.range, &other.range) {
+            (Some(a), Some(b)) => close(&a.min, &b.min) && close(&a.max, &b.max),
+            (None, None) => true,
+            _ => false,
+        };
+        self.count == other.count
+            && close(&self.mean, &other.mean)
+            && close(&self.std, &other.std)
+            && ranges
+    }
+
     /// Mean and population standard deviation of every feature; a feature that never varies
     /// gets standard deviation 1, so it normalises to 0 rather than to infinity.
     pub fn compute<'a>(
@@ -165,6 +185,26 @@ mod tests {
             dyaw: yaw_rate * 0.5,
             dt_s: 0.5,
         }
+    }
+
+    #[test]
+    fn statistics_match_across_a_last_bit_but_not_across_other_data() {
+        let actions = [action(8.0, 0.2), action(10.0, -0.2), action(12.0, 0.0)];
+        let stats = ActionStats::compute(&actions).unwrap();
+        // What serde_json read back from the shipped weights: 3.6262073335357203 written,
+        // 3.62620733353572 read, one unit in the last place apart.
+        let mut read_back = stats.clone();
+        read_back.mean[2] = f64::from_bits(read_back.mean[2].to_bits() + 1);
+        assert_ne!(read_back, stats);
+        assert!(read_back.matches(&stats) && stats.matches(&read_back));
+        let mut other = stats.clone();
+        other.mean[0] += 1e-6;
+        assert!(!other.matches(&stats), "other actions");
+        let fewer = ActionStats::compute(&actions[..2]).unwrap();
+        assert!(!fewer.matches(&stats));
+        let mut unranged = stats.clone();
+        unranged.range = None;
+        assert!(!unranged.matches(&stats));
     }
 
     #[test]

@@ -147,9 +147,13 @@ pub enum TrainError {
     #[error("init: {0}")]
     Init(#[from] bevworld_world_model::weights::WorldModelWeightsError),
     #[error(
-        "init {path}: its actions were normalised with other statistics than this training cache's: fine-tune on the data it was trained on"
+        "init {path}: its actions were normalised with other statistics ({recorded}) than this training cache's ({cache}): fine-tune on the data it was trained on"
     )]
-    InitActions { path: std::path::PathBuf },
+    InitActions {
+        path: std::path::PathBuf,
+        recorded: String,
+        cache: String,
+    },
 }
 
 /// The training data, already cut where it can be.
@@ -334,9 +338,14 @@ impl WorldModelTrainer {
     ) -> Result<Self, TrainError> {
         let inner = self.device.clone().inner();
         let loaded = load_weights(&self.model_config, path, Some(tokenizer), &inner)?;
-        if loaded.meta.action_stats != *action_stats {
+        if !loaded.meta.action_stats.matches(action_stats) {
+            let describe = |stats: &ActionStats| {
+                format!("{} actions, mean {:?}", stats.count, stats.mean)
+            };
             return Err(TrainError::InitActions {
                 path: path.to_path_buf(),
+                recorded: describe(&loaded.meta.action_stats),
+                cache: describe(action_stats),
             });
         }
         let name = self.model_config.name.clone();
