@@ -21,6 +21,9 @@ for weights in shipped:nodes/world_model/weights/world-model-tiny.bpk \
         --set "models.tiny.world_model.weights=$path" --set "sensors=[lidar]" \
         --set "methods=[model,latent_ego_warp,oracle]" \
         --json > "bench/results/world-model-moving-loss-val-$name.json"
-    cargo run --release -p bevworld-bench --bin forecast_tables -- \
-        "bench/results/world-model-moving-loss-val-$name.json"
 done
+# The table of bench/results/world-model-training.md, generated from those files.
+cargo run --release -p bevworld-bench --bin forecast_tables -- --compare \
+    shipped=bench/results/world-model-moving-loss-val-shipped.json \
+    "moving loss=bench/results/world-model-moving-loss-val-moving.json" \
+    "plain loss=bench/results/world-model-moving-loss-val-plain.json"

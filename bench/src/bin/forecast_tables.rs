@@ -4,15 +4,19 @@
 //! K, as markdown. The pages quote these, generated from the figures, never typed.
 //!
 //!   cargo run --release -p bevworld-bench --bin forecast_tables -- bench/results/forecast-test.json
+//!
+//! With `--compare LABEL=FILE ...`, the point forecasts of several runs of the same scenes
+//! side by side, per horizon, beside the first run's latent ego warp and oracle.
 
-use bevworld_metrics::forecast_node::{agents_markdown_of, draws_markdown_of, markdown_of};
+use bevworld_metrics::forecast_node::{
+    agents_markdown_of, compare_markdown_of, draws_markdown_of, markdown_of,
+};
 
-fn main() {
-    let Some(path) = std::env::args().nth(1) else {
-        eprintln!("usage: forecast_tables SCORES.json");
-        std::process::exit(2);
-    };
-    let table: serde_json::Value = match std::fs::read(&path)
+const USAGE: &str =
+    "usage: forecast_tables SCORES.json | forecast_tables --compare LABEL=SCORES.json ...";
+
+fn read(path: &str) -> serde_json::Value {
+    match std::fs::read(path)
         .map_err(|e| e.to_string())
         .and_then(|bytes| serde_json::from_slice(&bytes).map_err(|e| e.to_string()))
     {
@@ -21,7 +25,32 @@ fn main() {
             eprintln!("{path}: {error}");
             std::process::exit(1);
         }
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("--compare") {
+        let mut runs = Vec::new();
+        for arg in &args[1..] {
+            let Some((label, path)) = arg.split_once('=') else {
+                eprintln!("{arg}: not LABEL=FILE\n{USAGE}");
+                std::process::exit(2);
+            };
+            runs.push((label.to_string(), read(path)));
+        }
+        if runs.is_empty() {
+            eprintln!("{USAGE}");
+            std::process::exit(2);
+        }
+        println!("{}", compare_markdown_of(&runs));
+        return;
+    }
+    let [path] = args.as_slice() else {
+        eprintln!("{USAGE}");
+        std::process::exit(2);
     };
+    let table = read(path);
     println!("{}", markdown_of(&table));
     let agents = agents_markdown_of(&table);
     if !agents.is_empty() {

@@ -513,9 +513,40 @@ pub fn agents_markdown_of(table: &serde_json::Value) -> String {
     )
 }
 
+/// The header of `summary_row`'s table: whole-scene Chamfer and the agents' headline scores.
+pub const SUMMARY_HEADER: &str = "| horizon | method | Chamfer (m²) | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) | moving: precision in their boxes | parked: recall@0.5 m | static: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|---|---|\n";
+
+/// One method's cell of a forecast table (`ForecastMetrics::table`) as a row under
+/// `SUMMARY_HEADER`, labelled `label`: means over scenes ± their spread.
+pub fn summary_row(horizon_s: f64, label: &str, cell: &serde_json::Value) -> String {
+    let value = |path: &[&str]| {
+        path.iter()
+            .try_fold(cell, |v, key| v.get(*key))
+            .and_then(serde_json::Value::as_f64)
+    };
+    let show = |path: &[&str], digits: usize| {
+        value(path).map_or("—".to_string(), |v| format!("{v:.digits$}"))
+    };
+    let scenes = |class: &str, metric: &str, digits: usize| {
+        let at = |stat: &str| show(&["agents", class, "over_scenes", metric, stat], digits);
+        format!("{} ± {}", at("mean"), at("std"))
+    };
+    format!(
+        "| +{horizon_s} s | {label} | {} ± {} | {} | {} | {} | {} | {} | {} |\n",
+        show(&["chamfer"], 3),
+        show(&["chamfer_scene_std"], 3),
+        scenes("moving_vehicles", "recall_1m", 2),
+        scenes("moving_vehicles", "recall_0.5m_above_ground", 2),
+        scenes("moving_vehicles", "chamfer_to_forecast", 2),
+        show(&["agents", "moving_boxes", "precision_0.5m"], 2),
+        scenes("parked_vehicles", "recall_0.5m", 2),
+        scenes("static", "chamfer_to_forecast", 3),
+    )
+}
+
 /// The rows of the model's draws (`model_draws`, `model_best_of_K`) beside the point
-/// forecast and the two latent references, as markdown: whole-scene Chamfer and the agent
-/// scores, means over scenes. Empty when the forecasts had one draw.
+/// forecast and the two latent references, as markdown under `SUMMARY_HEADER`. Empty when
+/// the forecasts had one draw.
 pub fn draws_markdown_of(table: &serde_json::Value) -> String {
     let mut text = String::new();
     let empty = Vec::new();
@@ -539,40 +570,45 @@ pub fn draws_markdown_of(table: &serde_json::Value) -> String {
             .chain(best_of.iter().map(|(_, key)| *key))
             .chain(["latent_ego_warp", "oracle"]);
         for method in methods {
-            let Some(cell) = row.get(method) else {
-                continue;
-            };
-            let value = |path: &[&str]| {
-                path.iter()
-                    .try_fold(cell, |v, key| v.get(*key))
-                    .and_then(serde_json::Value::as_f64)
-            };
-            let show = |path: &[&str], digits: usize| {
-                value(path).map_or("—".to_string(), |v| format!("{v:.digits$}"))
-            };
-            let scenes = |class: &str, metric: &str, digits: usize| {
-                let at = |stat: &str| show(&["agents", class, "over_scenes", metric, stat], digits);
-                format!("{} ± {}", at("mean"), at("std"))
-            };
-            text.push_str(&format!(
-                "| +{horizon} s | {method} | {} ± {} | {} | {} | {} | {} | {} | {} |\n",
-                show(&["chamfer"], 3),
-                show(&["chamfer_scene_std"], 3),
-                scenes("moving_vehicles", "recall_1m", 2),
-                scenes("moving_vehicles", "recall_0.5m_above_ground", 2),
-                scenes("moving_vehicles", "chamfer_to_forecast", 2),
-                show(&["agents", "moving_boxes", "precision_0.5m"], 2),
-                scenes("parked_vehicles", "recall_0.5m", 2),
-                scenes("static", "chamfer_to_forecast", 3),
-            ));
+            if let Some(cell) = row.get(method) {
+                text.push_str(&summary_row(horizon, method, cell));
+            }
         }
     }
     if text.is_empty() {
         return text;
     }
-    format!(
-        "| horizon | method | Chamfer (m²) | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) | moving: precision in their boxes | parked: recall@0.5 m | static: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|---|---|\n{text}"
-    )
+    format!("{SUMMARY_HEADER}{text}")
+}
+
+/// The point forecasts of several runs of the same scenes side by side (`(label, table)`),
+/// per horizon, then the first table's latent ego warp and oracle, under `SUMMARY_HEADER`.
+pub fn compare_markdown_of(runs: &[(String, serde_json::Value)]) -> String {
+    let mut text = String::from(SUMMARY_HEADER);
+    let Some((_, first)) = runs.first() else {
+        return String::new();
+    };
+    let empty = Vec::new();
+    for (index, row) in first["horizons"]
+        .as_array()
+        .unwrap_or(&empty)
+        .iter()
+        .enumerate()
+    {
+        let horizon = row["horizon_s"].as_f64().unwrap_or(f64::NAN);
+        for (label, table) in runs {
+            let cell = &table["horizons"][index];
+            if cell["horizon_s"].as_f64() == Some(horizon) {
+                text.push_str(&summary_row(horizon, label, &cell["model"]));
+            }
+        }
+        for method in ["latent_ego_warp", "oracle"] {
+            if let Some(cell) = row.get(method) {
+                text.push_str(&summary_row(horizon, method, cell));
+            }
+        }
+    }
+    text
 }
 
 /// The nearest-rank percentile `q` of `values` (NaN when there are none).
@@ -1011,6 +1047,39 @@ mod tests {
         let table = single.table();
         let row = table["horizons"][0].as_object().expect("row");
         assert!(row.keys().all(|k| !k.starts_with("model_")), "{row:?}");
+    }
+
+    #[test]
+    fn runs_compared_side_by_side_show_each_runs_point_forecast_per_horizon() {
+        let params = ForecastMetricsParams {
+            roi: "4docc".into(),
+            model: None,
+            json: None,
+            print: false,
+        };
+        let table = |points: &[[f32; 3]]| {
+            let mut metrics = build(&params, &bevworld_graph::Models::none()).expect("params");
+            metrics.score(&draw(0, 1, points)).expect("scored");
+            metrics.table()
+        };
+        let erased = table(&ROAD);
+        let kept = table(&[CAR, ROAD].concat());
+        let text = super::compare_markdown_of(&[("erased".into(), erased), ("kept".into(), kept)]);
+        let rows: Vec<&str> = text.lines().skip(2).collect();
+        assert_eq!(
+            rows.len(),
+            2,
+            "two runs, no ego warp or oracle was scored: {text}"
+        );
+        assert!(rows[0].starts_with("| +1 s | erased | "), "{text}");
+        // The car erased: none of its 4 returns within 1 m; kept exactly: all of them. One
+        // scene has no spread.
+        assert!(rows[0].contains("| 0.00 ± — |"), "{text}");
+        assert!(
+            rows[1].starts_with("| +1 s | kept | 0.000 ± — | 1.00 ± — |"),
+            "{text}"
+        );
+        assert!(super::compare_markdown_of(&[]).is_empty());
     }
 
     #[test]
