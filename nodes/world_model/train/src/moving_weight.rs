@@ -45,14 +45,20 @@ impl MovingWeight {
         problems
     }
 
-    /// Each cell's weight, from the true residual of the diffused frames.
+    /// Which cells move: 1 where the true residual passes the threshold in any channel.
     // [B, N, C, H, W] -> [B, N, 1, H, W]
-    pub fn cell_weights(&self, residual: Tensor<5>) -> Tensor<5> {
+    pub fn moving_cells(&self, residual: Tensor<5>) -> Tensor<5> {
         residual
             .abs()
             .max_dim(2)
             .greater_elem(self.threshold)
             .float()
+    }
+
+    /// Each cell's weight, from the true residual of the diffused frames.
+    // [B, N, C, H, W] -> [B, N, 1, H, W]
+    pub fn cell_weights(&self, residual: Tensor<5>) -> Tensor<5> {
+        self.moving_cells(residual)
             .mul_scalar(self.extra)
             .add_scalar(1.0)
     }

@@ -73,6 +73,8 @@ pub fn columns() -> Vec<&'static str> {
     columns.extend(FORECAST_COLUMNS);
     columns.extend(COPY_LAST_COLUMNS);
     columns.extend(EGO_WARP_COLUMNS);
+    // With `moving_weight`: the share of the step's cells it counts more.
+    columns.push("moving_share");
     columns
 }
 
@@ -339,9 +341,8 @@ impl WorldModelTrainer {
         let inner = self.device.clone().inner();
         let loaded = load_weights(&self.model_config, path, Some(tokenizer), &inner)?;
         if !loaded.meta.action_stats.matches(action_stats) {
-            let describe = |stats: &ActionStats| {
-                format!("{} actions, mean {:?}", stats.count, stats.mean)
-            };
+            let describe =
+                |stats: &ActionStats| format!("{} actions, mean {:?}", stats.count, stats.mean);
             return Err(TrainError::InitActions {
                 path: path.to_path_buf(),
                 recorded: describe(&loaded.meta.action_stats),
@@ -467,18 +468,23 @@ impl WorldModelTrainer {
                 );
                 // The mean over the batch: each micro-batch's mean weighted by its share.
                 let error = (output - wanted).abs();
-                let mean = match &moving_weight {
-                    Some(weight) => weight.loss(error, clean),
-                    None => error.mean(),
+                let share = draws.len() as f64 / batch;
+                let (mean, moving) = match &moving_weight {
+                    Some(weight) => {
+                        let moving = scalar(weight.moving_cells(clean.clone()).mean()) * share;
+                        (weight.loss(error, clean), Some(moving))
+                    }
+                    None => (error.mean(), None),
                 };
-                let loss = mean.mul_scalar(draws.len() as f64 / batch);
+                let loss = mean.mul_scalar(share);
                 let value = scalar(loss.clone());
                 let grads = GradientsParams::from_grads(loss.backward(), model);
-                (value, grads)
+                (value, moving, grads)
             },
         )
         .map_err(|source| TrainError::StepWorker { step, source })?;
-        let loss: f64 = outcomes.iter().map(|(v, _)| v).sum();
+        let loss: f64 = outcomes.iter().map(|(v, _, _)| v).sum();
+        let moving_share: Option<f64> = outcomes.iter().map(|(_, m, _)| *m).sum();
         if !loss.is_finite() {
             return Err(TrainError::NonFinite {
                 step,
@@ -493,7 +499,7 @@ impl WorldModelTrainer {
         let (model, grad_norm) = apply_gradients(
             self.model.clone(),
             &mut self.optimizer,
-            outcomes.into_iter().map(|(_, g)| g),
+            outcomes.into_iter().map(|(_, _, g)| g),
             self.config.optimizer.grad_clip_norm,
             lr,
         )
@@ -512,7 +518,9 @@ impl WorldModelTrainer {
             lr,
             loss,
             grad_norm,
-            terms: vec![("stage", (stage_index + 1) as f64)],
+            terms: std::iter::once(("stage", (stage_index + 1) as f64))
+                .chain(moving_share.map(|m| ("moving_share", m)))
+                .collect(),
         })
     }
 

@@ -740,6 +740,9 @@ fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_dat
     .expect("start");
     let report = weighted.train_step().expect("weighted step");
     assert!(report.loss.is_finite() && report.grad_norm > 0.0);
+    let moving = report.term("moving_share").expect("the share of moving cells");
+    assert!((0.0..=1.0).contains(&moving), "{moving}");
+    assert_eq!(tuned.train_step().expect("step").term("moving_share"), None);
     // Another tokenizer's latents, or other action statistics: refused, by what differs.
     let error = trainer(dir.path(), 2)
         .start_from(&path, ("tokenizer-test", "def"), &actions)
@@ -778,6 +781,11 @@ fn the_fine_tune_configs_differ_from_each_other_only_in_the_loss() {
     // The same data and scenes as the weights they start from.
     assert_eq!(
         (&moving.train, &moving.val, &moving.test, &moving.branches),
-        (&shipped.train, &shipped.val, &shipped.test, &shipped.branches)
+        (
+            &shipped.train,
+            &shipped.val,
+            &shipped.test,
+            &shipped.branches
+        )
     );
 }
