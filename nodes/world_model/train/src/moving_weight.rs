@@ -94,7 +94,7 @@ mod tests {
         let weights: Vec<f32> = weight
             .cell_weights(residual)
             .into_data()
-            .to_vec()
+            .try_to_vec::<f32>()
             .expect("f32");
         assert_eq!(weights, vec![1.0, 4.0, 4.0]);
     }

@@ -740,7 +740,9 @@ fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_dat
     .expect("start");
     let report = weighted.train_step().expect("weighted step");
     assert!(report.loss.is_finite() && report.grad_norm > 0.0);
-    let moving = report.term("moving_share").expect("the share of moving cells");
+    let moving = report
+        .term("moving_share")
+        .expect("the share of moving cells");
     assert!((0.0..=1.0).contains(&moving), "{moving}");
     assert_eq!(tuned.train_step().expect("step").term("moving_share"), None);
     // Another tokenizer's latents, or other action statistics: refused, by what differs.
