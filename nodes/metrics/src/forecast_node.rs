@@ -471,14 +471,7 @@ pub fn agents_markdown_of(table: &serde_json::Value) -> String {
             let Some(agents) = row.get(method).and_then(|c| c.get("agents")) else {
                 continue;
             };
-            let value = |path: &[&str]| {
-                path.iter()
-                    .try_fold(agents, |v, key| v.get(*key))
-                    .and_then(serde_json::Value::as_f64)
-            };
-            let show = |path: &[&str], digits: usize| {
-                value(path).map_or("—".to_string(), |v| format!("{v:.digits$}"))
-            };
+            let show = |path: &[&str], digits: usize| shown_at(agents, path, digits);
             let scenes = |class: &str, metric: &str, digits: usize, spread: bool| {
                 let mean = show(&[class, "over_scenes", metric, "mean"], digits);
                 if spread {
@@ -513,20 +506,21 @@ pub fn agents_markdown_of(table: &serde_json::Value) -> String {
     )
 }
 
+/// The number at `path` inside `value`, with `digits` decimals; "—" where there is none.
+fn shown_at(value: &serde_json::Value, path: &[&str], digits: usize) -> String {
+    path.iter()
+        .try_fold(value, |v, key| v.get(*key))
+        .and_then(serde_json::Value::as_f64)
+        .map_or("—".to_string(), |v| format!("{v:.digits$}"))
+}
+
 /// The header of `summary_row`'s table: whole-scene Chamfer and the agents' headline scores.
 pub const SUMMARY_HEADER: &str = "| horizon | method | Chamfer (m²) | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) | moving: precision in their boxes | parked: recall@0.5 m | static: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|---|---|\n";
 
 /// One method's cell of a forecast table (`ForecastMetrics::table`) as a row under
 /// `SUMMARY_HEADER`, labelled `label`: means over scenes ± their spread.
 pub fn summary_row(horizon_s: f64, label: &str, cell: &serde_json::Value) -> String {
-    let value = |path: &[&str]| {
-        path.iter()
-            .try_fold(cell, |v, key| v.get(*key))
-            .and_then(serde_json::Value::as_f64)
-    };
-    let show = |path: &[&str], digits: usize| {
-        value(path).map_or("—".to_string(), |v| format!("{v:.digits$}"))
-    };
+    let show = |path: &[&str], digits: usize| shown_at(cell, path, digits);
     let scenes = |class: &str, metric: &str, digits: usize| {
         let at = |stat: &str| show(&["agents", class, "over_scenes", metric, stat], digits);
         format!("{} ± {}", at("mean"), at("std"))
