@@ -415,6 +415,17 @@ fn refusals_say_the_rule_and_exit_2_before_any_work() {
         (
             vec![
                 "eval".into(),
+                "control".into(),
+                "--data".into(),
+                path(dir.path()),
+                "--set".into(),
+                "rollout.no_such_key=1".into(),
+            ],
+            "bad parameter 'no_such_key' of node 'rollout'",
+        ),
+        (
+            vec![
+                "eval".into(),
                 "forecast".into(),
                 "--data".into(),
                 path(dir.path()),

@@ -49,6 +49,11 @@ pub struct ControlEvalArgs {
     /// Print one JSON object: {"accuracy", "pairs", "swap_ratio", "manoeuvres": [...]}.
     #[arg(long)]
     pub json: bool,
+    /// Further `node.key=value` overrides of the graph, as `run --set`, applied after the
+    /// command's own: e.g. `models.tiny.world_model.weights=runs/x/world-model-tiny.bpk`
+    /// scores other weights.
+    #[arg(long = "set", value_name = "TARGET=VALUE")]
+    pub set: Vec<String>,
 }
 
 /// One manoeuvre's forecast sweep and its true sweep, for the picture.
@@ -139,7 +144,7 @@ struct Tally {
 pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
     let contract = &super::contracts::EVAL_CONTROL;
     // The model's own facts: its frame interval, how far it forecasts, its condition frames.
-    let model = super::graph_run::world_model_of(&args.graph, contract)?;
+    let model = super::graph_run::world_model_of(&args.graph, contract, &args.set)?;
     let ahead = frames_ahead(args.horizon, &model)?;
     if let Some(path) = &args.picture {
         crate::commands::eval::check_picture_path("--picture", path)?;
@@ -257,6 +262,7 @@ fn forecast_group(
         if let Some(steps) = args.steps {
             set.push(format!("steps={steps}"));
         }
+        set.extend(args.set.iter().cloned());
         let forecasting = || format!("forecasting {base} under {}", manoeuvre.name());
         let mut graph =
             super::graph_run::build_bound(&args.graph, &super::contracts::EVAL_CONTROL, &set)

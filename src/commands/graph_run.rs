@@ -81,8 +81,9 @@ pub fn bundle_name(graph: &Path, contract: &Contract) -> Result<String> {
 pub fn world_model_of(
     graph: &Path,
     contract: &Contract,
+    set: &[String],
 ) -> Result<bevworld_world_model::WorldModelConfig> {
-    let validated = validate_bound(graph, contract, &[])?;
+    let validated = validate_bound(graph, contract, set)?;
     let (name, bundle) = bundle_of(&validated)?;
     let files = bundle.world_model.with_context(|| {
         format!(
