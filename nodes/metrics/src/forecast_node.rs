@@ -643,9 +643,16 @@ pub fn markdown_of(table: &serde_json::Value) -> String {
                     .and_then(serde_json::Value::as_f64)
                     .map_or("—".to_string(), |v| format!("{v:.digits$}"))
             };
+            // The Chamfer distance with its spread over the scenes, where there were several.
+            let chamfer = match cell
+                .get("chamfer_scene_std")
+                .and_then(serde_json::Value::as_f64)
+            {
+                Some(spread) => format!("{} ± {spread:.3}", show("chamfer", 3)),
+                None => show("chamfer", 3),
+            };
             text.push_str(&format!(
-                "| +{horizon} s | {method} | {} | {} | {} | {} |\n",
-                show("chamfer", 3),
+                "| +{horizon} s | {method} | {chamfer} | {} | {} | {} |\n",
                 show("psnr_db", 2),
                 show("ssim", 3),
                 show("latent_l1", 3),
@@ -854,6 +861,13 @@ mod tests {
         // The population spread of {2, 4}.
         assert_eq!(model["chamfer_scene_std"], 1.0);
         assert_eq!(model["scenes"], 2);
+        // The printed table shows that spread; a single scene has none to show.
+        let text = super::markdown_of(&table);
+        assert!(text.contains("| +1 s | model | 2.667 ± 1.000 |"), "{text}");
+        let mut one = build(&params, &bevworld_graph::Models::none()).expect("params");
+        one.cell(1.0, 2, "model").add_chamfer("a", 1.0);
+        let text = super::markdown_of(&one.table());
+        assert!(text.contains("| +1 s | model | 1.000 | — |"), "{text}");
     }
 
     fn cloud(points: &[[f32; 3]]) -> bevworld_types::PointCloud {
