@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Issue 51's "a loss that counts what moves", measured on the validation scenes (seeds
-# 9100-9101) only: the shipped world model fine-tuned 300 steps with the moving-weighted loss
-# and, as its ablation, 300 steps with the plain loss, each forecast through the graph beside
-# the shipped weights (sweeps only: the Chamfer distance and the agents' scores read them).
-# About 35 min on 2 cores, after the latent caches (`bevworld train world-model --prepare-only`).
+# 9100-9101) only: the recipe's world model (`bevworld train world-model --out runs/wm-tiny`,
+# shipped until the stop fine-tune) fine-tuned 300 steps with the moving-weighted loss and, as
+# its ablation, 300 steps with the plain loss, each forecast through the graph beside the
+# recipe's weights (sweeps only: the Chamfer distance and the agents' scores read them).
+# About 35 min on 2 cores after the recipe's run.
 #   bench/scripts/world-model-moving-loss.sh [BEVWORLD_BINARY]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -14,7 +15,7 @@ for loss in moving plain; do
             --out "runs/wm-ft-$loss"
     fi
 done
-for weights in shipped:nodes/world_model/weights/world-model-tiny.bpk \
+for weights in recipe:runs/wm-tiny/world-model-tiny.bpk \
     moving:runs/wm-ft-moving/world-model-tiny.bpk plain:runs/wm-ft-plain/world-model-tiny.bpk; do
     IFS=: read -r name path <<<"$weights"
     $BIN eval forecast --data out/synth-wm-val --out "out/eval-forecast-val-$name" \
@@ -24,6 +25,6 @@ for weights in shipped:nodes/world_model/weights/world-model-tiny.bpk \
 done
 # The table of bench/results/world-model-training.md, generated from those files.
 cargo run --release -p bevworld-bench --bin forecast_tables -- --compare \
-    shipped=bench/results/world-model-moving-loss-val-shipped.json \
+    recipe=bench/results/world-model-moving-loss-val-recipe.json \
     "moving loss=bench/results/world-model-moving-loss-val-moving.json" \
     "plain loss=bench/results/world-model-moving-loss-val-plain.json"

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use bevworld_sinks::npy::npy_f32;
-use bevworld_types::{LatentStats, Pose};
+use bevworld_types::{LatentStats, Manoeuvre, Pose};
 use bevworld_world_model::{ActionStats, EgoWarpBase, LatentGrid, WorldModelConfig};
 use bevworld_world_model_train::config::{KEYFRAMES_INDEX, SWEEPS_INDEX};
 use bevworld_world_model_train::{
@@ -765,7 +765,7 @@ fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_dat
 }
 
 #[test]
-fn the_fine_tune_configs_differ_from_each_other_only_in_the_loss() {
+fn the_fine_tune_configs_differ_from_each_other_only_in_the_loss_or_the_manoeuvres() {
     let read = |name: &str| {
         let path = repo().join("configs/models").join(name);
         TrainWorldModelConfig::from_yaml_file(&path).expect("a valid config")
@@ -773,10 +773,30 @@ fn the_fine_tune_configs_differ_from_each_other_only_in_the_loss() {
     let moving = read("finetune-world-model-moving-tiny.yaml");
     let mut plain = read("finetune-world-model-plain-tiny.yaml");
     let shipped = read("train-world-model-tiny.yaml");
+    let mut stop = read("finetune-world-model-stop-tiny.yaml");
+    // They start from the recipe's weights, never from the shipped file, which is one of them.
     assert_eq!(
         moving.init.as_deref(),
-        Some(Path::new("nodes/world_model/weights/world-model-tiny.bpk"))
+        Some(Path::new("runs/wm-tiny/world-model-tiny.bpk"))
     );
+    // The stop fine-tune adds `stop` to the branched scenes, in caches of their own, and
+    // changes nothing else.
+    let (stop_branches, plain_branches) = (
+        stop.branches.clone().expect("branches"),
+        plain.branches.clone().expect("branches"),
+    );
+    let stop_branch = stop_branches.synth.branch.clone().expect("branched");
+    let plain_branch = plain_branches.synth.branch.clone().expect("branched");
+    assert_eq!(stop_branch.at_s, plain_branch.at_s);
+    assert_eq!(
+        stop_branch.manoeuvres,
+        [plain_branch.manoeuvres.clone(), vec![Manoeuvre::Stop]].concat()
+    );
+    assert_ne!(stop_branches.latents, plain_branches.latents);
+    assert_ne!(stop_branches.synth.dir, plain_branches.synth.dir);
+    assert_eq!(stop_branches.synth.seed, plain_branches.synth.seed);
+    stop.branches = plain.branches.clone();
+    assert_eq!(stop, plain, "the stop fine-tune changes its branches alone");
     assert!(moving.moving_weight.is_some() && plain.moving_weight.is_none());
     plain.moving_weight = moving.moving_weight;
     assert_eq!(plain, moving, "the ablation changes the loss alone");
