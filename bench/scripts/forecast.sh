@@ -48,6 +48,8 @@ $BIN eval control --data out/synth-control-val --out out/eval-control-val
 $BIN eval control --data out/synth-control-test --picture bench/results/control.png \
     --out out/eval-control-test --json > bench/results/control-test.json
 $BIN eval control --data out/synth-control-test --method latent_ego_warp \
-    --out out/eval-control-test-warp
+    --out out/eval-control-test-warp --json > bench/results/control-test-warp.json
+cargo run --release -p bevworld-bench --bin control_tables -- \
+    shipped=bench/results/control-test.json "latent ego warp=bench/results/control-test-warp.json"
 $BIN run configs/graphs/forecast.yaml --metrics out/forecast/metrics.json
 $BIN run configs/graphs/forecast_live.yaml --metrics out/forecast-live/metrics.json
