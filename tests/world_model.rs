@@ -179,11 +179,11 @@ fn a_left_and_a_right_turn_forecast_different_futures() {
 }
 
 /// The bar the network's action response should reach: its turns moving its own part half
-/// again more than its noise does. The shipped pair misses it (1.17x): the model needs work
+/// again more than its noise does. The shipped pair misses it (1.29x): the model needs work
 /// (the agents' issue), not the bar. `cargo test --release --test end_to_end -- --ignored
 /// half_again` measures it.
 #[test]
-#[ignore = "the shipped world model misses it: 1.17x against 1.5x (issue 51)"]
+#[ignore = "the shipped world model misses it: 1.29x against 1.5x (issue 51)"]
 fn the_network_responds_to_its_action_half_again_more_than_to_its_noise() {
     let r = action_response();
     assert!(

@@ -264,12 +264,17 @@ fn agents(f: &mut Figures) -> Result<Row, ReadmeError> {
     ))
 }
 
-fn control(f: &mut Figures) -> Result<Row, ReadmeError> {
-    let file = "control-test";
+/// An action-control run (`eval control --json`): `scenes` says which branched scenes.
+fn control(
+    f: &mut Figures,
+    file: &'static str,
+    scenes: &str,
+    page: &'static str,
+) -> Result<Row, ReadmeError> {
     let accuracy = f.number(file, "/accuracy")?;
     Ok((
         format!(
-            "Action control, branched held-out scenes ({} contexts, {} manoeuvres)",
+            "Action control, {scenes} ({} contexts, {} manoeuvres)",
             f.count(file, "/contexts")?,
             f.count(file, "/manoeuvres")?
         ),
@@ -281,7 +286,7 @@ fn control(f: &mut Figures) -> Result<Row, ReadmeError> {
             f.number(file, "/swap_ratio")?,
             verdict(accuracy >= 0.9)
         ),
-        "[forecast.md](bench/results/forecast.md)",
+        page,
     ))
 }
 
@@ -486,9 +491,13 @@ fn forecast_detection(f: &mut Figures) -> Result<Row, ReadmeError> {
             "+{horizon} s: forecast {forecast:.3}, `latent_ego_warp` {warp:.3}, the true future latent {truth:.3}"
         ));
     }
+    let measured_on = f
+        .text(file, "/measured_on")
+        .map(|on| format!(", measured on {on}"))
+        .unwrap_or_default();
     Ok((
         format!(
-            "The latent detector on the world model's forecasts, held-out test scenes ({} forecasts), mAP",
+            "The latent detector on the world model's forecasts, held-out test scenes ({} forecasts{measured_on}), mAP",
             f.count(file, "/windows")?
         ),
         format!(
@@ -784,7 +793,18 @@ pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
             "The same on the demo scene of the first command",
         )?,
         agents(&mut f)?,
-        control(&mut f)?,
+        control(
+            &mut f,
+            "control-test",
+            "branched held-out scenes",
+            "[forecast.md](bench/results/forecast.md)",
+        )?,
+        control(
+            &mut f,
+            "control6-fresh-stop",
+            "branched scenes no run had seen, `stop` among the manoeuvres",
+            "[world-model-training.md](bench/results/world-model-training.md)",
+        )?,
         devkit(&mut f)?,
         detection_metrics(&mut f)?,
         downstream(&mut f)?,

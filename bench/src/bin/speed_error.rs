@@ -56,17 +56,17 @@ const READING: &str = "## Reading it
   [world-model-training.md](world-model-training.md): better at +0.5 s (latent L1 0.426 against
   0.478), worse at +3 s (0.684 against 0.571). The rollout's shrink then keeps the warp
   wherever the sampled residual is under τ, which costs one clamp per frame; on these contexts
-  one step's 1 s Chamfer is 1.153 with it and 1.165 without.
+  one step's 1 s Chamfer was 1.153 with it and 1.165 without (the weights of 2026-12-05; not
+  re-measured since).
 - **The tokenizer's skipping** evaluates half the samples at segments of 12 with depth and
   colour indistinguishable from dense, but is not faster on these 2 cores yet: its per-ray
   bookkeeping costs what the skipped samples save (issue 35's subject).
 - **Long rollouts.** Chained for 20 s (7 forecasts, each one's last frames the next one's
   context, sampled without the shrink), the forecasts' per-channel RMS stays between 0.62 and 1.27 of the training
-  latents' 1 (`tests/hard_cases.rs`). Their error against what really came grows from a
-  latent L1 of 0.35 at +0.5 s to 0.59 at +3 s, 0.64 at +10 s and 0.77 at +20 s, below the
-  chained ego warp and the last observed frame copied throughout, though by +20 s the
-  margin over the chained warp is small (0.77 against 0.83)
-  ([long-rollout.md](long-rollout.md), two held-out 24 s scenes).
+  latents' 1 (`tests/hard_cases.rs`). Their error against what really came grows with the
+  horizon, below the chained ego warp and the last observed frame copied throughout, though
+  by +20 s the margin over the chained warp is small ([long-rollout.md](long-rollout.md), two
+  held-out 24 s scenes, has the figures).
 - **Memory.** One forecast peaks at 81 MiB at the tiny size and 5.6 GiB at the paper's; a
   tiny training step at 360 MiB ([memory.md](memory.md)).
 ";
