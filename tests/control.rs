@@ -141,6 +141,41 @@ fn branches_share_the_past_and_a_forecast_follows_its_own_manoeuvre() {
             "{result}"
         );
     }
+
+    // The floor: the tokenizer's latent of each branch's own true frame, rendered along that
+    // frame's rays, lies nearer its truth than any forecast does, and tells every branch apart.
+    let output = bevworld_owned(&[
+        "eval".into(),
+        "control".into(),
+        "--data".into(),
+        path(&branched),
+        "--horizon".into(),
+        "1".into(),
+        "--method".into(),
+        "oracle".into(),
+        "--out".into(),
+        path(&dir.path().join("control-oracle")),
+        "--json".into(),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let oracle: serde_json::Value = serde_json::from_slice(&output.stdout).expect("json");
+    assert_eq!(oracle["method"], "oracle");
+    assert_eq!(
+        (oracle["pairs"].clone(), oracle["accuracy"].clone()),
+        (3.into(), 1.0.into()),
+        "{oracle}"
+    );
+    let own = |table: &serde_json::Value, m: &str| {
+        table["distances"]["synth-009730"][m][m]
+            .as_f64()
+            .expect("own distance")
+    };
+    for m in ["keep", "left", "right"] {
+        assert!(
+            own(&oracle, m) < own(&result, m),
+            "{m}: {oracle} against {result}"
+        );
+    }
 }
 
 #[test]

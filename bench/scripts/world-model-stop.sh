@@ -30,14 +30,18 @@ for split in val:9850:4 fresh:9900:8; do
             --set "models.tiny.world_model.weights=$path" \
             --json > "bench/results/control6-$name-$label.json"
     done
-    $BIN eval control --data "out/synth-control6-$name" --out "out/eval-control6-$name-warp" \
-        --method latent_ego_warp --json > "bench/results/control6-$name-warp.json"
+    for method in warp:latent_ego_warp oracle:oracle; do
+        IFS=: read -r label flag <<<"$method"
+        $BIN eval control --data "out/synth-control6-$name" --out "out/eval-control6-$name-$label" \
+            --method "$flag" --json > "bench/results/control6-$name-$label.json"
+    done
     # The table of bench/results/world-model-training.md ("Stopping"), from those files.
     cargo run --release -p bevworld-bench --bin control_tables -- \
         "recipe=bench/results/control6-$name-recipe.json" \
         "five manoeuvres=bench/results/control6-$name-plain.json" \
         "with stop=bench/results/control6-$name-stop.json" \
-        "latent ego warp=bench/results/control6-$name-warp.json"
+        "latent ego warp=bench/results/control6-$name-warp.json" \
+        "oracle=bench/results/control6-$name-oracle.json"
 done
 # Does stopping cost the forecast? The validation scenes (9100-9101), as the moving-loss
 # fine-tunes were scored (bench/scripts/world-model-moving-loss.sh writes the other two files).

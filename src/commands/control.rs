@@ -37,7 +37,9 @@ pub struct ControlEvalArgs {
     #[arg(long)]
     pub steps: Option<usize>,
     /// What forecasts: `model`, or the baseline `latent_ego_warp` (the current latent moved by
-    /// each manoeuvre's motion), to see how much of the control the ego motion alone gives.
+    /// each manoeuvre's motion), to see how much of the control the ego motion alone gives, or
+    /// `oracle` (the tokenizer's latent of each branch's true future frame, rendered along its
+    /// rays): how far the tokenizer alone can tell the branches apart, the floor of the others.
     #[arg(long, default_value = "model")]
     pub method: String,
     /// Where the forecasts are written.
@@ -180,7 +182,7 @@ pub fn run(args: &ControlEvalArgs) -> Result<ExitCode> {
             continue;
         };
         contexts += 1;
-        let forecasts = forecast_group(args, base, group, &context, history)?;
+        let forecasts = forecast_group(args, &dataset, base, group, &context, (history, ahead))?;
         matrices.insert(
             base.clone(),
             score_group(group, &forecasts, &context, &mut tallies).into(),
@@ -232,25 +234,38 @@ fn frames_ahead(horizon: f64, model: &bevworld_world_model::WorldModelConfig) ->
 /// graph still writes its files under `--out`).
 fn forecast_group(
     args: &ControlEvalArgs,
+    dataset: &Dataset,
     base: &str,
     group: &Group,
     context: &SharedContext,
-    history: usize,
+    (history, ahead): (usize, usize),
 ) -> Result<Vec<Vec<[f64; 3]>>> {
-    let (_, first_scene, _) = &group[0];
+    let (_, first_scene, first_frames) = &group[0];
+    // Views of other contexts (the oracle reads on to the horizon) are not this group's.
+    let context_time = dataset
+        .read(first_frames[context.index])?
+        .time_of_validity_us;
+    let oracle = args.method == "oracle";
     let mut forecasts = Vec::new();
-    for (manoeuvre, _, _) in group {
+    for (manoeuvre, scene, _) in group {
         let out = args.out.join(base).join(manoeuvre.name());
         if out.exists() {
             std::fs::remove_dir_all(&out).with_context(|| format!("clearing {}", out.display()))?;
         }
+        // A forecast starts from the shared past and is given the manoeuvre; the oracle reads
+        // the branch itself on to the horizon and encodes its true frame there.
+        let (source_scene, frames, log_future, actions) = if oracle {
+            (scene, history + 1 + ahead, true, "log")
+        } else {
+            (first_scene, history + 1, false, manoeuvre.name())
+        };
         let mut set = vec![
             format!("data={}", args.data.display()),
-            format!("scenes=[{first_scene}]"),
+            format!("scenes=[{source_scene}]"),
             format!("start={}", context.index - history),
-            format!("max_frames={}", history + 1),
-            "log_future=false".into(),
-            format!("actions={}", manoeuvre.name()),
+            format!("max_frames={frames}"),
+            format!("log_future={log_future}"),
+            format!("actions={actions}"),
             format!("horizons=[{}]", args.horizon),
             format!("methods=[{}]", args.method),
             format!("written_method={}", args.method),
@@ -274,7 +289,11 @@ fn forecast_group(
         let sweep = rendered
             .take()
             .into_iter()
-            .filter(|r| r.view.method.name() == args.method && r.view.sample == 0)
+            .filter(|r| {
+                r.view.method.name() == args.method
+                    && r.view.sample == 0
+                    && r.view.context.time_of_validity_us == context_time
+            })
             .find_map(|r| r.lidar.as_ref().map(|cloud| cloud.ego_returns()))
             .with_context(|| format!("{}: the forecast rendered no sweep", forecasting()))?;
         forecasts.push(
