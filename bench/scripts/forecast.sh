@@ -49,7 +49,10 @@ $BIN eval control --data out/synth-control-test --picture bench/results/control.
     --out out/eval-control-test --json > bench/results/control-test.json
 $BIN eval control --data out/synth-control-test --method latent_ego_warp \
     --out out/eval-control-test-warp --json > bench/results/control-test-warp.json
+$BIN eval control --data out/synth-control-test --method oracle \
+    --out out/eval-control-test-oracle --json > bench/results/control-test-oracle.json
 cargo run --release -p bevworld-bench --bin control_tables -- \
-    shipped=bench/results/control-test.json "latent ego warp=bench/results/control-test-warp.json"
+    shipped=bench/results/control-test.json "latent ego warp=bench/results/control-test-warp.json" \
+    oracle=bench/results/control-test-oracle.json
 $BIN run configs/graphs/forecast.yaml --metrics out/forecast/metrics.json
 $BIN run configs/graphs/forecast_live.yaml --metrics out/forecast-live/metrics.json
