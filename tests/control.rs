@@ -110,20 +110,27 @@ fn branches_share_the_past_and_a_forecast_follows_its_own_manoeuvre() {
         );
     }
 
+    // `eval control` at 1 s by `method`, its JSON.
+    let control = |method: &str| -> serde_json::Value {
+        let output = bevworld_owned(&[
+            "eval".into(),
+            "control".into(),
+            "--data".into(),
+            path(&branched),
+            "--horizon".into(),
+            "1".into(),
+            "--method".into(),
+            method.into(),
+            "--out".into(),
+            path(&dir.path().join(format!("control-{method}"))),
+            "--json".into(),
+        ]);
+        assert!(output.status.success(), "{}", text(&output));
+        serde_json::from_slice(&output.stdout).expect("json")
+    };
+
     // The context is the last shared keyframe (1.5 s); 1 s later the truths differ.
-    let output = bevworld_owned(&[
-        "eval".into(),
-        "control".into(),
-        "--data".into(),
-        path(&branched),
-        "--horizon".into(),
-        "1".into(),
-        "--out".into(),
-        path(&dir.path().join("control")),
-        "--json".into(),
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
-    let result: serde_json::Value = serde_json::from_slice(&output.stdout).expect("json");
+    let result = control("model");
     assert_eq!(result["pairs"], 3, "{result}");
     let by_name = |name: &str| {
         result["manoeuvres"]
@@ -144,21 +151,7 @@ fn branches_share_the_past_and_a_forecast_follows_its_own_manoeuvre() {
 
     // The floor: the tokenizer's latent of each branch's own true frame, rendered along that
     // frame's rays, lies nearer its truth than any forecast does, and tells every branch apart.
-    let output = bevworld_owned(&[
-        "eval".into(),
-        "control".into(),
-        "--data".into(),
-        path(&branched),
-        "--horizon".into(),
-        "1".into(),
-        "--method".into(),
-        "oracle".into(),
-        "--out".into(),
-        path(&dir.path().join("control-oracle")),
-        "--json".into(),
-    ]);
-    assert!(output.status.success(), "{}", text(&output));
-    let oracle: serde_json::Value = serde_json::from_slice(&output.stdout).expect("json");
+    let oracle = control("oracle");
     assert_eq!(oracle["method"], "oracle");
     assert_eq!(
         (oracle["pairs"].clone(), oracle["accuracy"].clone()),
