@@ -32,7 +32,8 @@ pub struct TokenizerEvalArgs {
     #[arg(long, default_value = "out/eval-tokenizer")]
     pub out: PathBuf,
     /// Print the summary as one JSON object: the means over keyframes (`psnr_db`, `ssim`,
-    /// `chamfer_m2`), their spread over scenes (`scene_std`) and each scene's means.
+    /// `chamfer_m2`), their spread over scenes (`scene_std`), each scene's means, and the
+    /// rendered sweeps' agent-level scores against the annotated vehicles (`agents`).
     #[arg(long)]
     pub json: bool,
     /// Further `node.key=value` overrides of the graph, as `run --set`, applied after the
@@ -146,5 +147,42 @@ fn markdown_of(table: &serde_json::Value) -> String {
         with_spread("ssim", 3),
         with_spread("chamfer_m2", 3),
     ));
+    text.push_str(&agents_markdown_of(&table["agents"]));
+    text
+}
+
+/// The rendered sweeps' agent-level scores (the tokenizer's floor on vehicles), one row per
+/// class: the mean over scenes of each scene's pooled value ± their spread. Empty when the
+/// dataset has no annotations.
+fn agents_markdown_of(agents: &serde_json::Value) -> String {
+    if agents.is_null() {
+        return String::new();
+    }
+    let cell = |class: &str, name: &str, digits: usize| {
+        let figure = &agents[class]["over_scenes"][name];
+        match (figure["mean"].as_f64(), figure["std"].as_f64()) {
+            (Some(mean), Some(spread)) => format!("{mean:.digits$} ± {spread:.digits$}"),
+            (Some(mean), None) => format!("{mean:.digits$}"),
+            _ => "—".to_string(),
+        }
+    };
+    let mut text = String::from(
+        "\n\nThe rendered sweeps against the annotated vehicles (mean ± spread over scenes)\n\n\
+         | class | true points | recall@0.5 m | recall@1 m | recall@0.5 m above ground | Chamfer truth→render (m²) |\n\
+         |---|---|---|---|---|---|",
+    );
+    for class in ["moving_vehicles", "parked_vehicles", "static"] {
+        if agents[class].is_null() {
+            continue;
+        }
+        text.push_str(&format!(
+            "\n| {class} | {} | {} | {} | {} | {} |",
+            agents[class]["points"],
+            cell(class, "recall_0.5m", 2),
+            cell(class, "recall_1m", 2),
+            cell(class, "recall_0.5m_above_ground", 2),
+            cell(class, "chamfer_to_forecast", 3),
+        ));
+    }
     text
 }

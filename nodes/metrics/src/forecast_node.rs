@@ -393,70 +393,9 @@ impl ForecastMetrics {
     }
 }
 
-/// A cell's agent-level scores: per class the pooled recall, one-sided Chamfer and point
-/// count, with the spread over scenes of each scene's pooled value; for the moving vehicles
-/// the precision in their boxes and the displacement. `None` when no view was annotated.
+/// A cell's agent-level scores (`agents::agents_json`). `None` when no view was annotated.
 fn agents_json(cell: &Cell) -> Option<serde_json::Value> {
-    use bevworld_types::PointClass;
-    let pooled = &cell.agents;
-    if pooled.classes.iter().all(|c| c.points == 0) {
-        return None;
-    }
-    let mut agents = serde_json::Map::new();
-    for class in PointClass::ALL {
-        let sums = pooled.class(class);
-        if sums.points == 0 {
-            continue;
-        }
-        // Each scene's pooled value, then their mean and population spread: "mean ± spread
-        // over scenes", as the whole-scene Chamfer reports it.
-        let over_scenes = |value: &dyn Fn(&crate::agents::ClassSums) -> Option<f64>| {
-            let per_scene: Vec<f64> = cell
-                .agents_by_scene
-                .values()
-                .filter_map(|s| value(s.class(class)))
-                .collect();
-            let mean = (!per_scene.is_empty())
-                .then(|| per_scene.iter().sum::<f64>() / per_scene.len() as f64);
-            serde_json::json!({
-                "mean": mean,
-                "std": crate::report_file::population_std(&per_scene),
-            })
-        };
-        agents.insert(
-            class.name().into(),
-            serde_json::json!({
-                "points": sums.points,
-                "recall_0.5m": sums.recall_near(),
-                "recall_1m": sums.recall_far(),
-                "recall_0.5m_above_ground": sums.recall_near_above_ground(),
-                "chamfer_to_forecast": sums.chamfer_to_forecast(),
-                "over_scenes": {
-                    "scenes": cell.agents_by_scene.len(),
-                    "recall_0.5m": over_scenes(&|s| s.recall_near()),
-                    "recall_1m": over_scenes(&|s| s.recall_far()),
-                    "recall_0.5m_above_ground": over_scenes(&|s| s.recall_near_above_ground()),
-                    "chamfer_to_forecast": over_scenes(&|s| s.chamfer_to_forecast()),
-                },
-            }),
-        );
-    }
-    agents.insert(
-        "moving_boxes".into(),
-        serde_json::json!({
-            "forecast_points": pooled.in_moving_boxes,
-            "precision_0.5m": pooled.precision_in_moving_boxes(),
-        }),
-    );
-    agents.insert(
-        "moving_agents".into(),
-        serde_json::json!({
-            "agents": pooled.moving_agents,
-            "missed": pooled.moving_agents_missed(),
-            "displacement_m": pooled.displacement_m(),
-        }),
-    );
-    Some(agents.into())
+    crate::agents::agents_json(&cell.agents, &cell.agents_by_scene)
 }
 
 /// The agent-level part of a forecast table as markdown: per class, the mean over scenes of

@@ -6,8 +6,11 @@
 //! Every rendered point counts: the render casts one ray per remaining return, and a ray it
 //! ends on the car, or short of a return beyond its far plane, is an error that 4D-Occ's
 //! protocol (a prediction for every ray with a return) counts too. Means over frames go into
-//! the node's metrics; each scene's means and their spread over scenes go into its JSON summary.
+//! the node's metrics; each scene's means and their spread over scenes go into its JSON summary,
+//! with the rendered sweep's agent-level scores (`agents.rs`) against the frame's annotated
+//! vehicles: the tokenizer's floor on the other road users.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use bevworld_graph::{
@@ -17,6 +20,7 @@ use bevworld_types::{ImageSet, PointCloud, ScoreTable, SensorFrame};
 use image::imageops::FilterType;
 use serde::{Deserialize, Serialize};
 
+use crate::agents::{self, AgentSums};
 use crate::chamfer::{ChamferResult, Roi, chamfer_in_roi};
 use crate::image::{ImageMetricError, Planes, psnr, rgb_planes, ssim};
 
@@ -57,6 +61,10 @@ pub struct FrameScores {
     pub chamfer_m2: Option<f64>,
     /// NaN or infinite points the source dropped from the true sweep.
     pub truth_non_finite_points_dropped: usize,
+    /// The rendered sweep's agent-level sums against the frame's annotated vehicles: the
+    /// tokenizer's floor on moving and parked vehicles, which no forecast decoded through it
+    /// can beat by much. All static (and all zero for the vehicles) without annotations.
+    pub agents: AgentSums,
 }
 
 /// Why a reconstruction could not be scored.
@@ -152,6 +160,11 @@ pub fn score_frame(
             (result.pred_points > 0 && result.gt_points > 0).then_some(result.chamfer)
         },
         truth_non_finite_points_dropped: frame.lidar.dropped_non_finite,
+        agents: agents::score(
+            &agents::split_truth(frame, roi),
+            &to_f64(lidar.ego_points()),
+            roi,
+        ),
     })
 }
 
@@ -306,6 +319,21 @@ pub fn summary(scores: &[FrameScores]) -> serde_json::Value {
         "scene_std".into(),
         figures([spread[0], spread[1], spread[2]]).into(),
     );
+    // The rendered sweeps' agent-level scores, pooled over keyframes and per scene (null
+    // without annotations).
+    let mut pooled = AgentSums::default();
+    let mut by_scene: BTreeMap<String, AgentSums> = BTreeMap::new();
+    for s in scores {
+        pooled.add(&s.agents);
+        by_scene
+            .entry(s.scene_name.clone())
+            .or_default()
+            .add(&s.agents);
+    }
+    table.insert(
+        "agents".into(),
+        agents::agents_json(&pooled, &by_scene).into(),
+    );
     table.insert(
         "scenes".into(),
         per_scene
@@ -364,7 +392,35 @@ mod tests {
             ssim,
             chamfer_m2,
             truth_non_finite_points_dropped: 1,
+            agents: AgentSums::default(),
         }
+    }
+
+    /// `points` true points on moving vehicles, `near` of them with a rendered point within
+    /// 0.5 m.
+    fn with_moving(mut scores: FrameScores, points: u64, near: u64) -> FrameScores {
+        let class = &mut scores.agents.classes[0];
+        (class.points, class.within_near) = (points, near);
+        scores
+    }
+
+    #[test]
+    fn the_agent_scores_pool_over_keyframes_and_spread_over_scenes_by_hand() {
+        let scores = [
+            with_moving(frame("b", 20.0, 0.5, Some(1.0)), 4, 1),
+            with_moving(frame("a", 30.0, 0.7, Some(1.0)), 2, 2),
+            with_moving(frame("b", 22.0, 0.7, Some(3.0)), 4, 3),
+        ];
+        let agents = &summary(&scores)["agents"]["moving_vehicles"];
+        // Pooled: (1 + 2 + 3) / (4 + 2 + 4) = 0.6. Per scene: b 4 / 8, a 2 / 2; their mean
+        // 0.75 and population spread 0.25.
+        assert_eq!(agents["points"], 10);
+        assert!((agents["recall_0.5m"].as_f64().expect("pooled") - 0.6).abs() < 1e-12);
+        assert_eq!(agents["over_scenes"]["scenes"], 2);
+        assert_eq!(agents["over_scenes"]["recall_0.5m"]["mean"], 0.75);
+        assert_eq!(agents["over_scenes"]["recall_0.5m"]["std"], 0.25);
+        // Frames without annotated points have no agent scores, not zeros.
+        assert!(summary(&[frame("a", 20.0, 0.5, None)])["agents"].is_null());
     }
 
     #[test]

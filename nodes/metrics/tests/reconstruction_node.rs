@@ -1,7 +1,8 @@
 //! The `reconstruction_metrics` node on the real nuScenes keyframe: the input scored against
 //! itself gives the PSNR cap and zero Chamfer once the returns off the car are left out, as a
-//! render leaves them out; a rendered point on the car counts; a bad ROI preset or a rendered
-//! image of an unknown camera is a clear error, never a panic.
+//! render leaves them out; a rendered point on the car counts; the agent scores split a
+//! synthetic keyframe by its annotated vehicles (the real sample ships none: all static); a bad
+//! ROI preset or a rendered image of an unknown camera is a clear error, never a panic.
 
 use std::sync::Arc;
 
@@ -9,7 +10,7 @@ use bevworld_graph::{Header, Inputs, Instant, Message, Node, Outputs, Registry, 
 use bevworld_metrics::Roi;
 use bevworld_metrics::reconstruction_node::score_frame;
 use bevworld_sensors::{Dataset, DatasetOptions};
-use bevworld_types::{ImageSet, NamedImage, SensorFrame};
+use bevworld_types::{ImageSet, NamedImage, PointClass, SensorFrame};
 
 /// The real nuScenes keyframe (`BEVWORLD_DATA`), when it is there.
 fn frame() -> Option<SensorFrame> {
@@ -88,6 +89,16 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     assert_eq!(scores.psnr_db, 100.0, "identical images hit the cap");
     assert!((scores.ssim - 1.0).abs() < 1e-9);
     assert_eq!(scores.chamfer_m2, Some(0.0));
+    // The sample ships no annotations: every return is static, and each finds itself.
+    assert!(frame.boxes.is_empty());
+    let static_sums = scores.agents.class(PointClass::Static);
+    assert!(static_sums.points > 20_000);
+    assert_eq!(static_sums.within_near, static_sums.points);
+    assert_eq!(
+        scores.agents.class(PointClass::MovingVehicle).points
+            + scores.agents.class(PointClass::ParkedVehicle).points,
+        0
+    );
 
     // Points on the car in the rendered cloud count against it: with the whole input as the
     // "render", the ground-truth-to-render half is 0 and the other half is each point's
@@ -267,4 +278,61 @@ fn bad_params_and_unknown_cameras_are_named() {
             .to_string()
             .contains("no rendered images")
     );
+}
+
+/// A synthetic keyframe, whose boxes the world annotates: its own returns recall every class,
+/// the vehicles among them; an empty render recalls none.
+#[test]
+fn a_reconstruction_is_scored_on_the_annotated_vehicles() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("synth");
+    let config = bevworld_sensors::synth::SynthConfig {
+        seed: 31,
+        scenes: 1,
+        seconds: 0.5,
+        camera_width: 112,
+        camera_height: 64,
+        ..Default::default()
+    };
+    bevworld_sensors::synth::generate(&data, &config, |_, _| {}).expect("synthetic scene");
+    let frame = Dataset::open(&data, &DatasetOptions::default())
+        .expect("scene")
+        .read(0)
+        .expect("keyframe 0");
+    assert!(frame.keyframe && frame.boxes.iter().any(|b| b.is_vehicle()));
+    let scene_only = bevworld_types::PointCloud {
+        points: frame
+            .lidar
+            .scene_indices()
+            .into_iter()
+            .map(|i| frame.lidar.points[i])
+            .collect(),
+        ..(*frame.lidar).clone()
+    };
+    let images = inputs_as_render(&frame);
+    let scores = score_frame(&frame, &images, &scene_only, &Roi::FOUR_D_OCC).expect("scores");
+    let on_vehicles = |agents: &bevworld_metrics::agents::AgentSums| {
+        agents.class(PointClass::MovingVehicle).points
+            + agents.class(PointClass::ParkedVehicle).points
+    };
+    let vehicle_points = on_vehicles(&scores.agents);
+    assert!(vehicle_points > 100, "{vehicle_points} returns on vehicles");
+    for class in PointClass::ALL {
+        let sums = scores.agents.class(class);
+        assert_eq!(sums.within_near, sums.points, "{class:?}");
+        assert_eq!(sums.squared, 0.0, "{class:?}");
+    }
+    let empty = bevworld_types::PointCloud {
+        points: Vec::new(),
+        ..(*frame.lidar).clone()
+    };
+    let scores = score_frame(&frame, &images, &empty, &Roi::FOUR_D_OCC).expect("scores");
+    assert_eq!(
+        on_vehicles(&scores.agents),
+        vehicle_points,
+        "the same truth"
+    );
+    for class in PointClass::ALL {
+        assert_eq!(scores.agents.class(class).within_far, 0, "{class:?}");
+    }
 }
