@@ -76,6 +76,10 @@ pub struct TrainWorldModelArgs {
     /// Ablation: the steps of each kept stage.
     #[arg(long, value_delimiter = ',', value_name = "STEPS,..")]
     pub stage_steps: Option<Vec<usize>>,
+    /// Start from these trained weights (a world model's `.bpk` with its `.meta.json`),
+    /// overriding the config's `init`: e.g. the same fine-tune from other weights, its control.
+    #[arg(long, value_name = "WEIGHTS")]
+    pub init: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -122,6 +126,11 @@ pub struct TrainTokenizerArgs {
     /// return alike, or with probability proportional to its range.
     #[arg(long, value_name = "uniform|by_range")]
     pub lidar_draw: Option<String>,
+    /// The share of each step's LiDAR rays drawn from the returns on annotated vehicles,
+    /// overriding the config's `rays.lidar_vehicle_share` (0: every ray as `--lidar-draw`
+    /// draws it; 0.25 in `finetune-tokenizer-vehicles-tiny.yaml`).
+    #[arg(long, value_name = "SHARE")]
+    pub lidar_vehicle_share: Option<f64>,
     /// Weight of the L1 loss between rendered and input RGB (in [0, 1]), overriding the
     /// config's `loss.rgb_l1` (0.5 in the committed tiny config).
     #[arg(long, value_name = "W")]
@@ -228,6 +237,7 @@ fn request(args: &TrainTokenizerArgs) -> Result<TrainRequest> {
             lr: args.lr,
             ema_decay,
             lidar_draw,
+            lidar_vehicle_share: args.lidar_vehicle_share,
             rgb_l1: args.rgb_l1,
             rgb_l2: args.rgb_l2,
             lidar_l1: args.lidar_l1,
@@ -329,6 +339,7 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
             ego_warp_input: args.ego_warp_input,
             stages: args.stages.clone(),
             stage_steps: args.stage_steps.clone(),
+            init: args.init.clone(),
         },
     };
     // The flags are checked against the configs before the caches are exported, which takes

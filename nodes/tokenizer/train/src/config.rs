@@ -20,6 +20,13 @@ pub struct RayConfig {
     /// How the LiDAR rays are drawn.
     #[serde(default)]
     pub lidar_draw: LidarDraw,
+    /// The share of each step's LiDAR rays drawn from the returns on annotated vehicles (moving
+    /// or parked), uniformly among them; the rest are drawn as `lidar_draw` says, from every
+    /// return. Vehicles hold a few percent of a sweep's returns, so a uniform draw all but
+    /// ignores them, and the agent scores show the renderer drawing cars as blobs. 0 (the
+    /// default) leaves the draw as it was; a frame without annotations draws as with 0.
+    #[serde(default)]
+    pub lidar_vehicle_share: f64,
 }
 
 /// Which of a sweep's returns a step renders.
@@ -121,6 +128,12 @@ pub struct TrainConfig {
     /// turns the term off.
     #[serde(default)]
     pub perceptual_weights: Option<PathBuf>,
+    /// Start from these trained weights (a tokenizer's `.bpk`, relative to the working
+    /// directory, as the world model's `init`) instead of the seeded initialisation: a
+    /// fine-tune. The model and its moving average begin there; the optimiser's moments at
+    /// zero. They must be of this model.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<PathBuf>,
     pub data: DataConfig,
 }
 
@@ -194,6 +207,13 @@ impl TrainConfig {
             ("loss.lidar_termination", self.loss.lidar_termination),
         ] {
             require_non_negative(&mut problems, name, value);
+        }
+        let share = self.rays.lidar_vehicle_share;
+        if !(0.0..=1.0).contains(&share) {
+            problems.push(ConfigProblem::new(
+                "rays.lidar_vehicle_share",
+                format!("{share} (accepted: a share in [0, 1])"),
+            ));
         }
         let (t, v) = (&self.data.train, &self.data.val);
         for (name, set) in [("data.train", t), ("data.val", v)] {

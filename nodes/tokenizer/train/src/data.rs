@@ -4,10 +4,14 @@
 
 use std::path::Path;
 
+use crate::config::{LidarDraw, RayConfig};
+use bevworld_metrics::agents::{BOX_LIFT_M, BOX_MARGIN_M};
 use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::render::rays::Rays;
 use bevworld_tokenizer::{EncoderArrays, FrameInputs, FrameRays, InputError};
+use bevworld_types::{ObjectBox, PointClass, SensorFrame, SplitMix64, classify_point};
+use glam::DVec3;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
@@ -31,6 +35,10 @@ pub struct TrainingFrame {
     /// `render.escape_at_far`, whose return lies inside the voxel box), and those ranges.
     pub lidar: Rays,
     pub lidar_ranges: Vec<f32>,
+    /// The indices into `lidar` of the returns on an annotated vehicle (inside its box, grown
+    /// as the agent scores grow it), in order: what `rays.lidar_vehicle_share` draws from.
+    /// Empty for a frame without annotations.
+    pub lidar_on_vehicles: Vec<usize>,
     /// The scene's returns (off the ego vehicle, see `EgoBody`) in the ego frame, for Chamfer.
     pub lidar_points: Vec<[f32; 3]>,
 }
@@ -89,15 +97,68 @@ pub fn load_frames(
             .filter(|&i| (near..=far).contains(&rays.lidar_ranges[i]))
             .filter(|&i| !render.escape_at_far || in_box(&rays.lidar, i, rays.lidar_ranges[i]))
             .collect();
+        let lidar = rays.lidar.subset(&inside);
+        let lidar_ranges: Vec<f32> = inside.iter().map(|&i| rays.lidar_ranges[i]).collect();
         frames.push(TrainingFrame {
             token: frame.frame_token.clone(),
             encoder,
-            lidar: rays.lidar.subset(&inside),
-            lidar_ranges: inside.iter().map(|&i| rays.lidar_ranges[i]).collect(),
+            lidar_on_vehicles: on_vehicles(&frame, &lidar, &lidar_ranges),
+            lidar,
+            lidar_ranges,
             lidar_points: frame.lidar.scene_ego_points(),
             rays,
         });
         progress(index + 1, count);
     }
     Ok(frames)
+}
+
+/// The LiDAR rays of one frame for one step, as indices into `frame.lidar`: a share
+/// (`rays.lidar_vehicle_share`, as many as there are) uniformly from the returns on vehicles,
+/// the rest by `rays.lidar_draw` from every return. A ray can be drawn by both: it then
+/// counts twice, as a heavier weight would count it.
+pub fn draw_lidar(rng: &mut SplitMix64, frame: &TrainingFrame, rays: &RayConfig) -> Vec<usize> {
+    let on_vehicles = &frame.lidar_on_vehicles;
+    let from_vehicles = ((rays.lidar_rays as f64 * rays.lidar_vehicle_share).round() as usize)
+        .min(on_vehicles.len());
+    let count = rays.lidar_rays - from_vehicles;
+    let mut chosen = match rays.lidar_draw {
+        LidarDraw::Uniform => rng.choose(frame.lidar.len(), count),
+        LidarDraw::ByRange => rng.choose_weighted(&frame.lidar_ranges, count),
+    };
+    // After the base draw, and only when there is one, so that a share of 0 leaves the run's
+    // random stream as it was.
+    if from_vehicles > 0 {
+        chosen.extend(
+            rng.choose(on_vehicles.len(), from_vehicles)
+                .into_iter()
+                .map(|k| on_vehicles[k]),
+        );
+    }
+    chosen
+}
+
+/// The indices of the rays whose return (origin + range · direction, in the frame's LiDAR-time
+/// ego frame) lies on one of the frame's annotated vehicles, moving or parked, by the same
+/// boxes and margins as the agent scores (`bevworld_metrics::agents`).
+pub fn on_vehicles(frame: &SensorFrame, rays: &Rays, ranges: &[f32]) -> Vec<usize> {
+    let ego_from_global = frame.lidar.global_from_ego.inverse();
+    let vehicles: Vec<ObjectBox> = frame
+        .boxes
+        .iter()
+        .filter(|b| b.is_vehicle())
+        .map(|b| b.moved(&ego_from_global))
+        .collect();
+    if vehicles.is_empty() {
+        return Vec::new();
+    }
+    (0..rays.len())
+        .filter(|&i| {
+            let (origin, direction) = (rays.origins[i], rays.directions[i]);
+            let at = DVec3::from_array(std::array::from_fn(|axis| {
+                f64::from(origin[axis] + ranges[i] * direction[axis])
+            }));
+            classify_point(&vehicles, at, BOX_MARGIN_M, BOX_LIFT_M) != PointClass::Static
+        })
+        .collect()
 }

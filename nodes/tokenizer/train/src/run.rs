@@ -31,6 +31,7 @@ pub struct Overrides {
     /// `Some(None)` turns the moving average off.
     pub ema_decay: Option<Option<f64>>,
     pub lidar_draw: Option<LidarDraw>,
+    pub lidar_vehicle_share: Option<f64>,
     pub rgb_l1: Option<f64>,
     pub rgb_l2: Option<f64>,
     pub lidar_l1: Option<f64>,
@@ -173,6 +174,10 @@ fn configs(request: &TrainRequest) -> Result<(TrainConfig, TokenizerConfig), Run
         (set.lidar_l1, &mut config.loss.lidar_l1),
         (set.lidar_distortion, &mut config.loss.lidar_distortion),
         (set.lidar_termination, &mut config.loss.lidar_termination),
+        (
+            set.lidar_vehicle_share,
+            &mut config.rays.lidar_vehicle_share,
+        ),
     ] {
         if let Some(value) = value {
             *field = value;
@@ -321,6 +326,15 @@ pub fn train(
             });
         }
     }
+    // The weights a fine-tune starts from, looked for before minutes of data loading.
+    if let Some(init) = &config.init
+        && !init.is_file()
+        && latest.is_none()
+    {
+        return Err(RunError::Override {
+            problem: ConfigProblem::new("init", format!("{}: no such file", init.display())),
+        });
+    }
     // The run folder is made once the data have loaded: a refused or missing dataset leaves
     // nothing behind.
     let (train_frames, val_frames, message) = datasets(request, &config, &model, progress)?;
@@ -337,6 +351,8 @@ pub fn train(
     }
     if request.resume {
         trainer = trainer.resume(&request.out)?;
+    } else if let Some(init) = &config.init {
+        trainer = trainer.start_from(init)?;
     }
     record_configs(&request.out, &config, &model)?;
     let mut log = MetricsLog::open(

@@ -29,8 +29,8 @@ use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 
-use crate::config::{LidarDraw, TrainConfig};
-use crate::data::TrainingFrame;
+use crate::config::TrainConfig;
+use crate::data::{TrainingFrame, draw_lidar};
 use crate::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
 };
@@ -318,6 +318,16 @@ impl Trainer {
         })
     }
 
+    /// Starts from trained weights (`init`) instead of the seeded initialisation: the model
+    /// and its moving average both begin there; the optimiser's moments start at zero.
+    pub fn start_from(mut self, path: &Path) -> Result<Self, TrainError> {
+        self.model = load_weights(&self.model_config, path, &self.device)?;
+        if self.weight_average.is_some() {
+            self.weight_average = Some(self.model.valid());
+        }
+        Ok(self)
+    }
+
     /// Spreads each step's frames, and validation's, over `threads` worker threads (at least
     /// one). Results are the same for any count: every frame's gradients are computed alone
     /// and summed in frame order.
@@ -404,11 +414,7 @@ impl Trainer {
             Vec::new()
         };
         let lidar = if self.model_config.uses(Modality::Lidar) {
-            let count = self.config.rays.lidar_rays;
-            match self.config.rays.lidar_draw {
-                LidarDraw::Uniform => self.rng.choose(data.lidar.len(), count),
-                LidarDraw::ByRange => self.rng.choose_weighted(&data.lidar_ranges, count),
-            }
+            draw_lidar(&mut self.rng, data, &self.config.rays)
         } else {
             Vec::new()
         };

@@ -291,6 +291,7 @@ fn bad_training_configs_name_every_field() {
     config.loss.rgb_l2 = f64::INFINITY;
     config.optimizer.decay_steps = Some(0);
     config.ema_decay = Some(1.0);
+    config.rays.lidar_vehicle_share = 1.5;
     let problems = config
         .problems()
         .iter()
@@ -308,6 +309,7 @@ fn bad_training_configs_name_every_field() {
         "loss.rgb_l2",
         "optimizer.decay_steps",
         "ema_decay",
+        "rays.lidar_vehicle_share",
     ] {
         assert!(
             problems.contains(field),
@@ -424,6 +426,217 @@ fn the_shipped_training_configs_load() {
         assert!(config.problems().is_empty());
         assert_eq!(model.name, format!("tokenizer-{name}"));
     }
+}
+
+/// The vehicle fine-tune is the recipe but for its start, its length and rate, and the share
+/// of rays on vehicles: a difference it measures is one of those.
+#[test]
+fn the_vehicle_fine_tune_differs_from_the_recipe_only_where_it_says() {
+    let (mut recipe, recipe_model) = configs();
+    let (finetune, finetune_model) = TrainConfig::from_yaml_file(
+        &root().join("configs/models/finetune-tokenizer-vehicles-tiny.yaml"),
+    )
+    .expect("the fine-tune config");
+    assert_eq!(finetune_model, recipe_model);
+    let init = finetune
+        .init
+        .clone()
+        .expect("a fine-tune starts from weights");
+    assert!(
+        root().join(&init).is_file(),
+        "{} is not the shipped weights' path",
+        init.display()
+    );
+    recipe.init = Some(init);
+    recipe.steps = 1000;
+    recipe.seed = 1;
+    recipe.optimizer.lr = 7e-4;
+    recipe.optimizer.warmup_steps = 50;
+    recipe.optimizer.decay_steps = None;
+    recipe.rays.lidar_vehicle_share = 0.25;
+    recipe.checkpoint_every = 250;
+    recipe.validate_every = 500;
+    assert_eq!(finetune, recipe);
+}
+
+/// A car 10 m ahead (4 m long, 2 m wide, 1.5 m tall) and a pedestrian 10 m to the left, and
+/// five returns worked out by hand against them.
+#[test]
+fn the_returns_on_vehicles_are_those_inside_their_boxes_by_hand() {
+    use bevworld_sensors::{Dataset, DatasetOptions};
+    use bevworld_tokenizer::render::rays::Rays;
+    use bevworld_types::ObjectBox;
+    use glam::{DAffine3, DVec3};
+
+    let (_dir, data) = small_scene(79, 0.5);
+    let mut frame = Dataset::open(&data, &DatasetOptions::default())
+        .expect("scene")
+        .read(0)
+        .expect("frame 0");
+    let global_from_ego = frame.lidar.global_from_ego;
+    let object = |category: &str, at: [f64; 3], size: [f64; 3]| ObjectBox {
+        instance_token: category.into(),
+        category: category.into(),
+        global_from_box: global_from_ego * DAffine3::from_translation(DVec3::from_array(at)),
+        size,
+        velocity: Some([0.0, 0.0]),
+        attributes: Vec::new(),
+        num_pts: 1,
+    };
+    frame.boxes = vec![
+        object("vehicle.car", [10.0, 0.0, 0.75], [2.0, 4.0, 1.5]),
+        object("human.pedestrian.adult", [0.0, 10.0, 0.9], [0.6, 0.6, 1.8]),
+    ];
+    let returns: [[f32; 3]; 5] = [
+        [10.0, 0.0, 1.0],  // inside the car
+        [10.0, 0.0, 0.05], // under it, below the box's lifted bottom: the road
+        [20.0, 0.0, 1.0],  // past it
+        [0.0, 10.0, 1.0],  // on the pedestrian, who is no vehicle
+        [9.0, 1.15, 1.0],  // 0.15 m off its side, within the 0.2 m margin
+    ];
+    let ranges: Vec<f32> = returns
+        .iter()
+        .map(|p| p.iter().map(|v| v * v).sum::<f32>().sqrt())
+        .collect();
+    let rays = Rays {
+        origins: vec![[0.0; 3]; returns.len()],
+        directions: returns
+            .iter()
+            .zip(&ranges)
+            .map(|(p, r)| p.map(|v| v / r))
+            .collect(),
+    };
+    assert_eq!(
+        bevworld_tokenizer_train::data::on_vehicles(&frame, &rays, &ranges),
+        vec![0, 4]
+    );
+    frame.boxes.clear();
+    assert!(bevworld_tokenizer_train::data::on_vehicles(&frame, &rays, &ranges).is_empty());
+}
+
+#[test]
+fn a_share_of_the_lidar_rays_is_drawn_from_the_vehicles_and_none_leaves_the_draw_as_it_was() {
+    use bevworld_tokenizer_train::data::draw_lidar;
+    use bevworld_types::SplitMix64;
+
+    let (config, _) = configs();
+    let mut frame = frames()[0].clone();
+    let on_vehicles = frame.lidar_on_vehicles.clone();
+    assert!(
+        on_vehicles.len() > 100 && on_vehicles.len() < frame.lidar.len() / 4,
+        "{} of {} returns on vehicles",
+        on_vehicles.len(),
+        frame.lidar.len()
+    );
+    let mut rays = config.rays.clone();
+    rays.lidar_rays = 400;
+    let n = frame.lidar.len();
+
+    // No share: the base draw, and the random stream left where it leaves it.
+    rays.lidar_vehicle_share = 0.0;
+    let (mut rng, mut base) = (SplitMix64::new(5), SplitMix64::new(5));
+    assert_eq!(draw_lidar(&mut rng, &frame, &rays), base.choose(n, 400));
+    assert_eq!(rng.next_u64(), base.next_u64());
+
+    // A quarter: 300 by the base draw, then 100 distinct returns on vehicles.
+    rays.lidar_vehicle_share = 0.25;
+    let (mut rng, mut base) = (SplitMix64::new(5), SplitMix64::new(5));
+    let drawn = draw_lidar(&mut rng, &frame, &rays);
+    assert_eq!(drawn.len(), 400);
+    assert_eq!(drawn[..300], base.choose(n, 300)[..]);
+    let mut from_vehicles = drawn[300..].to_vec();
+    assert!(from_vehicles.iter().all(|i| on_vehicles.contains(i)));
+    from_vehicles.sort_unstable();
+    from_vehicles.dedup();
+    assert_eq!(from_vehicles.len(), 100);
+
+    // All of them, when a frame has fewer returns on vehicles than the share asks for.
+    rays.lidar_vehicle_share = 1.0;
+    rays.lidar_rays = on_vehicles.len() + 10;
+    let drawn = draw_lidar(&mut SplitMix64::new(5), &frame, &rays);
+    assert_eq!(drawn.len(), on_vehicles.len() + 10);
+    let mut tail = drawn[10..].to_vec();
+    tail.sort_unstable();
+    assert_eq!(tail, on_vehicles);
+
+    // A frame without annotated vehicles draws as with no share.
+    frame.lidar_on_vehicles.clear();
+    rays.lidar_rays = 400;
+    assert_eq!(
+        draw_lidar(&mut SplitMix64::new(5), &frame, &rays),
+        SplitMix64::new(5).choose(n, 400)
+    );
+}
+
+#[test]
+fn a_fine_tune_starts_from_its_weights_and_a_missing_file_is_refused_before_any_data() {
+    let (mut config, model) = configs();
+    config.rays.lidar_rays = 256;
+    config.rays.cameras_per_step = 2;
+    let mut first = trainer(config.clone(), model.clone(), frames().clone());
+    first.train_step().expect("step");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let weights = dir.path().join("tokenizer.bpk");
+    first.save_weights(&weights).expect("weights");
+    let saved = module_values(
+        &bevworld_tokenizer::load_weights(&model, &weights, &Device::flex()).expect("load"),
+    );
+    let started = trainer(config.clone(), model.clone(), frames().clone())
+        .start_from(&weights)
+        .expect("the weights load");
+    assert_eq!(module_values(started.model()), saved);
+    assert_eq!(
+        module_values(started.weight_average().expect("kept")),
+        saved
+    );
+    assert_ne!(
+        values(&trainer(config.clone(), model.clone(), frames().clone())),
+        values(&started),
+        "the seeded start is another"
+    );
+
+    // A run whose `init` is missing is refused by that field, before it looks for its data
+    // (here a folder that is not there either) or makes its run folder.
+    let shipped = std::fs::read_to_string(root().join("configs/models/train-tokenizer-tiny.yaml"))
+        .expect("shipped config");
+    // The model config named by its full path, so that the file can live in a temporary folder.
+    let model_path = root().join("configs/models/tokenizer-tiny.yaml");
+    assert!(shipped.contains("model: tokenizer-tiny.yaml"));
+    let path = dir.path().join("missing-init.yaml");
+    std::fs::write(
+        &path,
+        format!(
+            "init: {}\n{}",
+            dir.path().join("gone.bpk").display(),
+            shipped.replace(
+                "model: tokenizer-tiny.yaml",
+                &format!("model: {}", model_path.display())
+            )
+        ),
+    )
+    .expect("write");
+    let out = dir.path().join("run");
+    let request = bevworld_tokenizer_train::TrainRequest {
+        config: path,
+        out: out.clone(),
+        resume: false,
+        overrides: bevworld_tokenizer_train::Overrides::default(),
+        until: None,
+        data: Some(dir.path().join("no-data")),
+        val: Some(dir.path().join("no-data")),
+        threads: None,
+        log_every: 10,
+        targets: bevworld_tokenizer_train::Targets::default(),
+    };
+    let message = match bevworld_tokenizer_train::train(&request, &Device::flex(), &mut ()) {
+        Err(error) => error.to_string(),
+        Ok(_) => panic!("a missing init was accepted"),
+    };
+    assert!(
+        message.contains("init") && message.contains("gone.bpk"),
+        "{message}"
+    );
+    assert!(!out.exists(), "a refused run made its folder");
 }
 
 #[test]

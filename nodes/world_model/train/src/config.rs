@@ -118,6 +118,11 @@ pub struct TrainWorldModelConfig {
     /// this tokenizer's latents, with the training cache's action statistics.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init: Option<PathBuf>,
+    /// `init`'s weights were trained on another tokenizer's latents, of which this run's
+    /// tokenizer is a fine-tune: the run adapts them to its own latents instead of refusing
+    /// them. The action statistics must still match. Off (the default): refused.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub init_from_other_tokenizer: bool,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -184,6 +189,12 @@ impl TrainWorldModelConfig {
 
     pub fn problems(&self) -> Vec<ConfigProblem> {
         let mut problems = self.optimizer.problems("optimizer");
+        if self.init_from_other_tokenizer && self.init.is_none() {
+            problems.push(ConfigProblem::new(
+                "init_from_other_tokenizer",
+                "true without `init`: there are no weights to adapt",
+            ));
+        }
         require_count(&mut problems, "batch", self.batch);
         require_count(&mut problems, "micro_batch", self.micro_batch);
         if self.micro_batch > 0 && !self.batch.is_multiple_of(self.micro_batch) {

@@ -56,6 +56,8 @@ pub struct Overrides {
     pub stages: Option<Vec<usize>>,
     /// Steps of each kept stage.
     pub stage_steps: Option<Vec<usize>>,
+    /// The trained weights a fine-tune starts from, in place of the config's `init`.
+    pub init: Option<PathBuf>,
 }
 
 /// The configs as this run trains them: the files', then the overrides, checked again.
@@ -65,6 +67,9 @@ pub fn effective_configs(
     let mut config = TrainWorldModelConfig::from_yaml_file(&request.config)?;
     let mut model = WorldModelConfig::from_yaml_file(&config.model)?;
     let set = &request.overrides;
+    if let Some(init) = &set.init {
+        config.init = Some(init.clone());
+    }
     if let Some(target) = set.target {
         model.diffusion.target = target;
         if target == Target::Epsilon {
@@ -299,11 +304,10 @@ pub fn train(
     if request.resume && has_checkpoint {
         trainer = trainer.resume(&request.out)?;
     } else if let Some(init) = &config.init {
-        trainer = trainer.start_from(
-            init,
-            (&tokenizer.model, &tokenizer.weights_hash),
-            &action_stats,
-        )?;
+        // Weights of another tokenizer's latents only where the config says so.
+        let pairing = (!config.init_from_other_tokenizer)
+            .then_some((tokenizer.model.as_str(), tokenizer.weights_hash.as_str()));
+        trainer = trainer.start_from(init, pairing, &action_stats)?;
     }
     let total = config.total_steps();
     let stop = request.until.unwrap_or(total).min(total);

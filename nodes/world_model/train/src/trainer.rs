@@ -330,16 +330,17 @@ impl WorldModelTrainer {
 
     /// Starts from trained weights (`init`) instead of the seeded initialisation: the model
     /// and its moving average both begin there; the optimiser's moments start at zero. The
-    /// weights must be of this model, trained on `tokenizer`'s latents (name, weights digest)
-    /// with `action_stats`, or the actions would be normalised otherwise than they learnt.
+    /// weights must be of this model, trained on `tokenizer`'s latents (name, weights digest;
+    /// `None`: the latents of any tokenizer, which the fine-tune adapts them to) with
+    /// `action_stats`, or the actions would be normalised otherwise than they learnt.
     pub fn start_from(
         mut self,
         path: &Path,
-        tokenizer: (&str, &str),
+        tokenizer: Option<(&str, &str)>,
         action_stats: &ActionStats,
     ) -> Result<Self, TrainError> {
         let inner = self.device.clone().inner();
-        let loaded = load_weights(&self.model_config, path, Some(tokenizer), &inner)?;
+        let loaded = load_weights(&self.model_config, path, tokenizer, &inner)?;
         if !loaded.meta.action_stats.matches(action_stats) {
             let describe =
                 |stats: &ActionStats| format!("{} actions, mean {:?}", stats.count, stats.mean);

@@ -198,6 +198,18 @@ fn a_strided_stage_draws_every_sixth_sweep_from_any_start() {
         problems.iter().any(|p| p.field == "stages[2].stride"),
         "{problems:?}"
     );
+    // Weights of another tokenizer to adapt, but no weights named.
+    let mut config = train_config(dir.path());
+    config.init_from_other_tokenizer = true;
+    let problems = config.problems();
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.field == "init_from_other_tokenizer"),
+        "{problems:?}"
+    );
+    config.init = Some(dir.path().join("trained.bpk"));
+    assert!(config.problems().is_empty(), "{:?}", config.problems());
 }
 
 #[test]
@@ -649,8 +661,19 @@ fn ablation_overrides_reach_the_model_config_and_inconsistent_ones_are_refused()
         command: "test".into(),
         overrides,
     };
-    let (_, shipped) = effective_configs(&request(Overrides::default())).expect("shipped");
+    let (recipe, shipped) = effective_configs(&request(Overrides::default())).expect("shipped");
     assert!(!shipped.ego_warp_input && shipped.ego_warp_fade_s.is_none());
+    // `--init` starts the recipe from weights instead.
+    assert_eq!(recipe.init, None);
+    let (started, _) = effective_configs(&request(Overrides {
+        init: Some(PathBuf::from("runs/other/world-model-tiny.bpk")),
+        ..Overrides::default()
+    }))
+    .expect("an init");
+    assert_eq!(
+        started.init.as_deref(),
+        Some(Path::new("runs/other/world-model-tiny.bpk"))
+    );
     let (_, model) = effective_configs(&request(Overrides {
         ego_warp_input: Some(true),
         ego_warp_fade_s: Some(Some(2.0)),
@@ -711,7 +734,7 @@ fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_dat
     let fresh = trainer(dir.path(), 2);
     assert_ne!(parameters(&fresh), parameters(&trained), "a seeded start");
     let mut tuned = trainer(dir.path(), 2)
-        .start_from(&path, ("tokenizer-test", "abc"), &actions)
+        .start_from(&path, Some(("tokenizer-test", "abc")), &actions)
         .expect("start from the weights");
     assert_eq!(
         parameters(&tuned),
@@ -736,7 +759,7 @@ fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_dat
         2,
     )
     .expect("trainer")
-    .start_from(&path, ("tokenizer-test", "abc"), &actions)
+    .start_from(&path, Some(("tokenizer-test", "abc")), &actions)
     .expect("start");
     let report = weighted.train_step().expect("weighted step");
     assert!(report.loss.is_finite() && report.grad_norm > 0.0);
@@ -747,15 +770,20 @@ fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_dat
     assert_eq!(tuned.train_step().expect("step").term("moving_share"), None);
     // Another tokenizer's latents, or other action statistics: refused, by what differs.
     let error = trainer(dir.path(), 2)
-        .start_from(&path, ("tokenizer-test", "def"), &actions)
+        .start_from(&path, Some(("tokenizer-test", "def")), &actions)
         .err()
         .expect("another tokenizer");
     assert!(error.to_string().starts_with("init:"), "{error}");
+    // ... unless the run adapts them to its tokenizer (`init_from_other_tokenizer`).
+    let adapted = trainer(dir.path(), 2)
+        .start_from(&path, None, &actions)
+        .expect("weights of another tokenizer, adapted");
+    assert_eq!(parameters(&adapted), parameters(&trained));
     let mut other = actions.clone();
     other.mean[0] += 1.0;
     save_weights(&trained.shipped_model(), &meta(other), &path).expect("save");
     let error = trainer(dir.path(), 2)
-        .start_from(&path, ("tokenizer-test", "abc"), &actions)
+        .start_from(&path, Some(("tokenizer-test", "abc")), &actions)
         .err()
         .expect("other action statistics");
     assert!(
@@ -765,7 +793,7 @@ fn a_fine_tune_starts_from_the_weights_it_names_and_refuses_weights_of_other_dat
 }
 
 #[test]
-fn the_fine_tune_configs_differ_from_each_other_only_in_the_loss_or_the_manoeuvres() {
+fn the_fine_tune_configs_differ_from_each_other_only_where_each_says() {
     let read = |name: &str| {
         let path = repo().join("configs/models").join(name);
         TrainWorldModelConfig::from_yaml_file(&path).expect("a valid config")
@@ -810,4 +838,39 @@ fn the_fine_tune_configs_differ_from_each_other_only_in_the_loss_or_the_manoeuvr
             &shipped.branches
         )
     );
+    // The vehicle-tokenizer experiment is the stop fine-tune on another tokenizer's latents,
+    // from the shipped weights: the same scenes in caches of their own, nothing else changed.
+    let mut vehicles = read("finetune-world-model-vehicles-tiny.yaml");
+    let stop = read("finetune-world-model-stop-tiny.yaml");
+    assert!(vehicles.init_from_other_tokenizer);
+    assert_eq!(
+        vehicles.init.as_deref(),
+        Some(Path::new("nodes/world_model/weights/world-model-tiny.bpk"))
+    );
+    assert_ne!(vehicles.tokenizer_weights, stop.tokenizer_weights);
+    let mut caches = vec![&mut vehicles.train, &mut vehicles.val];
+    caches.extend(vehicles.test.as_mut());
+    caches.extend(vehicles.branches.as_mut());
+    let stop_caches: Vec<_> = [
+        Some(&stop.train),
+        Some(&stop.val),
+        stop.test.as_ref(),
+        stop.branches.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    assert_eq!(caches.len(), stop_caches.len());
+    for (cache, theirs) in caches.into_iter().zip(stop_caches) {
+        assert_eq!(cache.synth, theirs.synth, "the same scenes");
+        assert_ne!(
+            cache.latents, theirs.latents,
+            "encoded by another tokenizer"
+        );
+        cache.latents = theirs.latents.clone();
+    }
+    vehicles.tokenizer_weights = stop.tokenizer_weights.clone();
+    vehicles.init = stop.init.clone();
+    vehicles.init_from_other_tokenizer = false;
+    assert_eq!(vehicles, stop, "nothing else differs");
 }
