@@ -264,6 +264,37 @@ fn agents(f: &mut Figures) -> Result<Row, ReadmeError> {
     ))
 }
 
+/// The tokenizer's floor on vehicles (its render of the true sweep, `eval tokenizer`), shipped
+/// and with the vehicle fine-tune, on the world model's test scenes.
+fn tokenizer_floor(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let (shipped, vehicles) = (
+        "tokenizer-floor-test-shipped",
+        "tokenizer-floor-test-vehicles",
+    );
+    let recall = |f: &mut Figures, file: &str, class: &str, at: &str| {
+        f.number(
+            file,
+            &format!("/agents/{class}/over_scenes/recall_{at}/mean"),
+        )
+    };
+    Ok((
+        format!(
+            "The tokenizer's floor on vehicles: its render of the true sweep, test scenes ({} keyframes)",
+            f.count(shipped, "/frames")?
+        ),
+        format!(
+            "parked vehicles within 0.5 m: {:.2} shipped, {:.2} with a quarter of the LiDAR rays on vehicles (a fine-tune, not shipped); moving vehicles within 1 m: {:.2} and {:.2}; PSNR {:.2} and {:.2} dB",
+            recall(f, shipped, "parked_vehicles", "0.5m")?,
+            recall(f, vehicles, "parked_vehicles", "0.5m")?,
+            recall(f, shipped, "moving_vehicles", "1m")?,
+            recall(f, vehicles, "moving_vehicles", "1m")?,
+            f.number(shipped, "/psnr_db")?,
+            f.number(vehicles, "/psnr_db")?,
+        ),
+        "[tokenizer-vehicles.md](bench/results/tokenizer-vehicles.md)",
+    ))
+}
+
 /// An action-control run (`eval control --json`): `scenes` says which branched scenes.
 fn control(
     f: &mut Figures,
@@ -793,6 +824,7 @@ pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
             "The same on the demo scene of the first command",
         )?,
         agents(&mut f)?,
+        tokenizer_floor(&mut f)?,
         control(
             &mut f,
             "control-test",
