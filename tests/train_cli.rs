@@ -503,6 +503,44 @@ fn the_peak_learning_rate_flag_is_checked_recorded_and_followed() {
     }
 }
 
+#[test]
+fn the_vehicle_share_and_moving_weight_flags_are_checked_before_anything_is_written() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = dir.path().join("run");
+    // The data need not exist: the refusal comes first.
+    let (data, val) = (dir.path().join("none"), dir.path().join("none-val"));
+    let share = bevworld_owned(&train_args(
+        &run,
+        &data,
+        &val,
+        "2",
+        &["--lidar-vehicle-share", "1.5"],
+    ));
+    assert_refused_before_writing(
+        &share,
+        &run,
+        "--lidar-vehicle-share: rays.lidar_vehicle_share: 1.5",
+    );
+    for (weight, message) in [
+        ("four", "--moving-weight: 'four' is not EXTRA,THRESHOLD"),
+        ("4", "--moving-weight: '4' is not EXTRA,THRESHOLD"),
+        ("4,3,2", "--moving-weight: '4,3,2' is not EXTRA,THRESHOLD"),
+    ] {
+        let world_model = bevworld_owned(
+            &[
+                "train",
+                "world-model",
+                "--out",
+                run.to_str().expect("utf-8"),
+                "--moving-weight",
+                weight,
+            ]
+            .map(String::from),
+        );
+        assert_refused_before_writing(&world_model, &run, message);
+    }
+}
+
 /// The command failed with status 1, its output names `message`, and it wrote no run folder.
 fn assert_refused_before_writing(bad: &std::process::Output, run: &Path, message: &str) {
     assert_eq!(bad.status.code(), Some(1), "{}", text(bad));

@@ -80,6 +80,11 @@ pub struct TrainWorldModelArgs {
     /// overriding the config's `init`: e.g. the same fine-tune from other weights, its control.
     #[arg(long, value_name = "WEIGHTS")]
     pub init: Option<PathBuf>,
+    /// Weight the loss where the residual over the ego warp moves, overriding the config's
+    /// `moving_weight`: a moving cell counts `1 + EXTRA` times, a cell moves past THRESHOLD
+    /// (the standardised residual), e.g. `4,3` as `finetune-world-model-moving-tiny.yaml`.
+    #[arg(long, value_name = "EXTRA,THRESHOLD")]
+    pub moving_weight: Option<String>,
 }
 
 #[derive(Args)]
@@ -186,8 +191,9 @@ pub struct TrainTokenizerArgs {
 
 /// The flag that sets each config field an override can refuse, so that the refusal names the
 /// flag the user typed.
-const FLAG_OF_FIELD: [(&str, &str); 9] = [
+const FLAG_OF_FIELD: [(&str, &str); 10] = [
     ("optimizer.lr", "--lr"),
+    ("rays.lidar_vehicle_share", "--lidar-vehicle-share"),
     ("ema_decay", "--ema-decay"),
     ("loss.rgb_l1", "--rgb-l1"),
     ("loss.rgb_l2", "--rgb-l2"),
@@ -340,6 +346,23 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
             stages: args.stages.clone(),
             stage_steps: args.stage_steps.clone(),
             init: args.init.clone(),
+            moving_weight: args
+                .moving_weight
+                .as_deref()
+                .map(|text| {
+                    let numbers: Vec<f64> = text
+                        .split(',')
+                        .map(|n| n.trim().parse::<f64>())
+                        .collect::<Result<_, _>>()
+                        .map_err(|_| anyhow!("--moving-weight: '{text}' is not EXTRA,THRESHOLD"))?;
+                    match numbers[..] {
+                        [extra, threshold] => {
+                            Ok(wm::moving_weight::MovingWeight { extra, threshold })
+                        }
+                        _ => Err(anyhow!("--moving-weight: '{text}' is not EXTRA,THRESHOLD")),
+                    }
+                })
+                .transpose()?,
         },
     };
     // The flags are checked against the configs before the caches are exported, which takes

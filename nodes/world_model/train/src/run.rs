@@ -22,6 +22,7 @@ use crate::config::{
     CacheConfig, ConfigError, KEYFRAMES_INDEX, SWEEPS_INDEX, TrainWorldModelConfig,
 };
 use crate::data::{DataError, Expected, LatentSequences, load_sequences};
+use crate::moving_weight::MovingWeight;
 use crate::trainer::{CURVES, HorizonScores, TrainError, TrainingData, WorldModelTrainer, columns};
 use crate::window::{WindowShape, WindowValues};
 
@@ -58,6 +59,8 @@ pub struct Overrides {
     pub stage_steps: Option<Vec<usize>>,
     /// The trained weights a fine-tune starts from, in place of the config's `init`.
     pub init: Option<PathBuf>,
+    /// The loss weighted where the residual moves, in place of the config's `moving_weight`.
+    pub moving_weight: Option<MovingWeight>,
 }
 
 /// The configs as this run trains them: the files', then the overrides, checked again.
@@ -69,6 +72,9 @@ pub fn effective_configs(
     let set = &request.overrides;
     if let Some(init) = &set.init {
         config.init = Some(init.clone());
+    }
+    if let Some(weight) = set.moving_weight {
+        config.moving_weight = Some(weight);
     }
     if let Some(target) = set.target {
         model.diffusion.target = target;

@@ -636,6 +636,7 @@ fn one_step_lowers_the_loss_on_a_fixed_batch() {
 
 #[test]
 fn ablation_overrides_reach_the_model_config_and_inconsistent_ones_are_refused() {
+    use bevworld_world_model_train::moving_weight::MovingWeight;
     use bevworld_world_model_train::{Overrides, TrainRequest, effective_configs};
     let dir = tempfile::tempdir().expect("dir");
     let text = std::fs::read_to_string(repo().join("configs/models/train-world-model-tiny.yaml"))
@@ -674,6 +675,23 @@ fn ablation_overrides_reach_the_model_config_and_inconsistent_ones_are_refused()
         started.init.as_deref(),
         Some(Path::new("runs/other/world-model-tiny.bpk"))
     );
+    // `--moving-weight` weights the loss as the config's `moving_weight` would, checked alike.
+    let weight = |extra: f64| MovingWeight {
+        extra,
+        threshold: 3.0,
+    };
+    let (weighted, _) = effective_configs(&request(Overrides {
+        moving_weight: Some(weight(4.0)),
+        ..Overrides::default()
+    }))
+    .expect("a moving weight");
+    assert_eq!(weighted.moving_weight, Some(weight(4.0)));
+    let error = effective_configs(&request(Overrides {
+        moving_weight: Some(weight(-1.0)),
+        ..Overrides::default()
+    }))
+    .expect_err("a negative extra weight");
+    assert!(error.to_string().contains("moving_weight.extra"), "{error}");
     let (_, model) = effective_configs(&request(Overrides {
         ego_warp_input: Some(true),
         ego_warp_fade_s: Some(Some(2.0)),
