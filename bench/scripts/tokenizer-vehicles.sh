@@ -2,8 +2,9 @@
 # Issue 51's tokenizer floor (bench/results/tokenizer-vehicles.md): does a tokenizer fine-tuned
 # with a quarter of its LiDAR rays on the annotated vehicles draw them where the shipped one
 # draws blobs, and does the world model then forecast them better?
-#  1. Two fine-tunes of the shipped tokenizer, 1,000 steps each (about 13 min each on 2 cores):
-#     `finetune-tokenizer-vehicles-tiny.yaml`, and the same with the uniform draw, its ablation.
+#  1. Three fine-tunes of the shipped tokenizer, 1,000 steps each (about 13 min each on 2 cores):
+#     `finetune-tokenizer-vehicles-tiny.yaml` (a quarter of the rays on vehicles), the same with
+#     a tenth, and with the uniform draw, the ablation.
 #  2. Each, and the shipped weights, scored by `eval tokenizer` on the world model's validation
 #     scenes (seeds 9100-9101, 80 keyframes): the floor.
 #  3. The shipped world model continued 300 steps on the vehicle tokenizer's latents
@@ -45,7 +46,7 @@ if [ "${TEST:-0}" = 1 ]; then
     $TABLES forecast_tables -- bench/results/tokenizer-vehicles-forecast-test-vehicles.json
     exit 0
 fi
-for run in vehicles:0.25 plain:0; do
+for run in vehicles:0.25 vehicles10:0.1 plain:0; do
     IFS=: read -r name share <<<"$run"
     if [ ! -f "runs/tok-ft-$name/tokenizer.bpk" ]; then
         $BIN train tokenizer --config configs/models/finetune-tokenizer-vehicles-tiny.yaml \
@@ -53,12 +54,13 @@ for run in vehicles:0.25 plain:0; do
     fi
 done
 for weights in shipped:$SHIPPED_TOKENIZER plain:runs/tok-ft-plain/tokenizer.bpk \
-    vehicles:runs/tok-ft-vehicles/tokenizer.bpk; do
+    vehicles10:runs/tok-ft-vehicles10/tokenizer.bpk vehicles:runs/tok-ft-vehicles/tokenizer.bpk; do
     IFS=: read -r label path <<<"$weights"
     floor val out/synth-wm-val "$label" "$path"
 done
 $TABLES tokenizer_floor -- shipped=bench/results/tokenizer-floor-val-shipped.json \
     "1,000 more steps=bench/results/tokenizer-floor-val-plain.json" \
+    "1,000 more steps, a tenth of the rays on vehicles=bench/results/tokenizer-floor-val-vehicles10.json" \
     "1,000 more steps, a quarter of the rays on vehicles=bench/results/tokenizer-floor-val-vehicles.json"
 
 # The world model on the vehicle tokenizer's latents, and its control.
