@@ -66,15 +66,20 @@ impl SplitTruth {
     }
 }
 
-/// Splits a logged frame by its annotated boxes. A frame without boxes is all static.
-pub fn split_truth(frame: &SensorFrame, roi: &Roi) -> SplitTruth {
+/// The frame's annotated vehicles, moved into its LiDAR-time ego frame.
+pub fn vehicles_in_ego_frame(frame: &SensorFrame) -> Vec<ObjectBox> {
     let ego_from_global = frame.lidar.global_from_ego.inverse();
-    let vehicles: Vec<ObjectBox> = frame
+    frame
         .boxes
         .iter()
         .filter(|b| b.is_vehicle())
         .map(|b| b.moved(&ego_from_global))
-        .collect();
+        .collect()
+}
+
+/// Splits a logged frame by its annotated boxes. A frame without boxes is all static.
+pub fn split_truth(frame: &SensorFrame, roi: &Roi) -> SplitTruth {
+    let vehicles = vehicles_in_ego_frame(frame);
     let points: Vec<[f64; 3]> = frame
         .lidar
         .scene_ego_points()

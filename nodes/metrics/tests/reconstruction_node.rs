@@ -42,6 +42,19 @@ fn inputs_as_render(frame: &SensorFrame) -> ImageSet {
     }
 }
 
+/// The frame's sweep without its returns off the ego car, as a render casts its rays.
+fn scene_only(frame: &SensorFrame) -> bevworld_types::PointCloud {
+    bevworld_types::PointCloud {
+        points: frame
+            .lidar
+            .scene_indices()
+            .into_iter()
+            .map(|i| frame.lidar.points[i])
+            .collect(),
+        ..(*frame.lidar).clone()
+    }
+}
+
 fn build(params: serde_json::Value) -> Result<Box<dyn Task>, String> {
     let mut registry = Registry::new();
     bevworld_metrics::register(&mut registry);
@@ -69,15 +82,7 @@ fn the_scene_scored_against_itself_is_perfect_and_points_on_the_car_count() {
     };
     // A render casts no rays for the 8,526 returns off the car, and the ground truth leaves
     // them out too: the scene's own returns score perfectly.
-    let scene_only = bevworld_types::PointCloud {
-        points: frame
-            .lidar
-            .scene_indices()
-            .into_iter()
-            .map(|i| frame.lidar.points[i])
-            .collect(),
-        ..(*frame.lidar).clone()
-    };
+    let scene_only = scene_only(&frame);
     assert_eq!(scene_only.len(), 34_688 - 8_526);
     let scores = score_frame(
         &frame,
@@ -300,15 +305,7 @@ fn a_reconstruction_is_scored_on_the_annotated_vehicles() {
         .read(0)
         .expect("keyframe 0");
     assert!(frame.keyframe && frame.boxes.iter().any(|b| b.is_vehicle()));
-    let scene_only = bevworld_types::PointCloud {
-        points: frame
-            .lidar
-            .scene_indices()
-            .into_iter()
-            .map(|i| frame.lidar.points[i])
-            .collect(),
-        ..(*frame.lidar).clone()
-    };
+    let scene_only = scene_only(&frame);
     let images = inputs_as_render(&frame);
     let scores = score_frame(&frame, &images, &scene_only, &Roi::FOUR_D_OCC).expect("scores");
     let on_vehicles = |agents: &bevworld_metrics::agents::AgentSums| {

@@ -5,12 +5,12 @@
 use std::path::Path;
 
 use crate::config::{LidarDraw, RayConfig};
-use bevworld_metrics::agents::{BOX_LIFT_M, BOX_MARGIN_M};
+use bevworld_metrics::agents::{BOX_LIFT_M, BOX_MARGIN_M, vehicles_in_ego_frame};
 use bevworld_pillarize::{Limits, Pillarizer, ego_points_into};
 use bevworld_sensors::{Dataset, DatasetOptions};
 use bevworld_tokenizer::render::rays::Rays;
 use bevworld_tokenizer::{EncoderArrays, FrameInputs, FrameRays, InputError};
-use bevworld_types::{ObjectBox, PointClass, SensorFrame, SplitMix64, classify_point};
+use bevworld_types::{PointClass, SensorFrame, SplitMix64, classify_point};
 use glam::DVec3;
 
 #[derive(Debug, thiserror::Error)]
@@ -142,13 +142,7 @@ pub fn draw_lidar(rng: &mut SplitMix64, frame: &TrainingFrame, rays: &RayConfig)
 /// ego frame) lies on one of the frame's annotated vehicles, moving or parked, by the same
 /// boxes and margins as the agent scores (`bevworld_metrics::agents`).
 pub fn on_vehicles(frame: &SensorFrame, rays: &Rays, ranges: &[f32]) -> Vec<usize> {
-    let ego_from_global = frame.lidar.global_from_ego.inverse();
-    let vehicles: Vec<ObjectBox> = frame
-        .boxes
-        .iter()
-        .filter(|b| b.is_vehicle())
-        .map(|b| b.moved(&ego_from_global))
-        .collect();
+    let vehicles = vehicles_in_ego_frame(frame);
     if vehicles.is_empty() {
         return Vec::new();
     }
