@@ -408,7 +408,21 @@ fn the_forecast_graph_refuses_actions_and_horizons_it_cannot_forecast() {
     let output = check("views.methods=[model,magic]");
     assert_eq!(output.status.code(), Some(2));
     assert!(
-        text(&output).contains("latent_ego_warp"),
+        text(&output).contains("latent_ego_warp") && text(&output).contains("latent_box_warp"),
+        "{}",
+        text(&output)
+    );
+    let output = check("views.box_margin_m=-1");
+    assert_eq!(output.status.code(), Some(2));
+    assert!(
+        text(&output).contains("box_margin_m") && text(&output).contains("[0, 10] m"),
+        "{}",
+        text(&output)
+    );
+    let output = check("views.box_motion=teleport");
+    assert_eq!(output.status.code(), Some(2));
+    assert!(
+        text(&output).contains("future_box") && text(&output).contains("velocity"),
         "{}",
         text(&output)
     );
@@ -502,4 +516,57 @@ fn the_live_graph_forecasts_while_the_log_replays_in_real_time() {
             );
         }
     }
+}
+
+#[test]
+fn the_agent_graph_adds_the_model_with_its_agents_and_the_box_warp_carries_the_moving_cars() {
+    let dir = tempfile::tempdir().expect("dir");
+    // 5 s: contexts at keyframes 3..=9, of which 3..=8 have a logged frame 1 s on.
+    let data = synth(dir.path(), 9712, 5.0);
+    let output = bevworld_owned(&[
+        "eval".into(),
+        "forecast".into(),
+        "--graph".into(),
+        "configs/graphs/forecast_agents.yaml".into(),
+        "--data".into(),
+        path(&data),
+        "--horizons".into(),
+        "0.5,1".into(),
+        "--out".into(),
+        path(&dir.path().join("agents")),
+        "--set".into(),
+        "sensors=[lidar]".into(),
+        "--set".into(),
+        "methods=[model,model_with_agents,latent_ego_warp,latent_box_warp]".into(),
+        "--json".into(),
+    ]);
+    assert!(output.status.success(), "{}", text(&output));
+    let table: serde_json::Value = serde_json::from_slice(&output.stdout).expect("one JSON object");
+    let rows = table["horizons"].as_array().expect("horizons");
+    assert_eq!(rows.len(), 2, "{table}");
+    for row in rows {
+        for method in ["model_with_agents", "latent_box_warp"] {
+            let chamfer = row[method]["chamfer"].as_f64().unwrap_or(f64::NAN);
+            assert!(chamfer.is_finite() && chamfer > 0.0, "{method}: {row}");
+            assert_eq!(
+                row[method]["agents"]["moving_vehicles"]["points"],
+                row["model"]["agents"]["moving_vehicles"]["points"],
+                "{method} is scored on the same true points: {row}"
+            );
+        }
+    }
+    // The box warp carries each car to its true box: at +1 s it keeps more of the moving
+    // cars' returns within 1 m than the ego warp, which leaves them where they were.
+    let at_1s = &rows[1];
+    let recall = |method: &str| {
+        at_1s[method]["agents"]["moving_vehicles"]["recall_1m"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{method}: {at_1s}"))
+    };
+    assert!(
+        recall("latent_box_warp") > recall("latent_ego_warp"),
+        "box warp {} against ego warp {}",
+        recall("latent_box_warp"),
+        recall("latent_ego_warp")
+    );
 }

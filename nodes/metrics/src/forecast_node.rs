@@ -556,10 +556,12 @@ pub fn percentile(values: &[f64], q: f64) -> f64 {
 }
 
 /// The methods of a forecast table, in the order they are shown.
-pub const TABLE_METHODS: [&str; 6] = [
+pub const TABLE_METHODS: [&str; 8] = [
     "model",
+    "model_with_agents",
     "latent_copy_last",
     "latent_ego_warp",
+    "latent_box_warp",
     "oracle",
     "copy_last",
     "ego_warp",

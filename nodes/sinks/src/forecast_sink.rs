@@ -424,7 +424,13 @@ pub fn register(registry: &mut Registry) {
             }
             let method = ForecastMethod::parse(&params.method).ok_or_else(|| {
                 ParamError::field("method", format!("unknown method '{}'", params.method))
-                    .with_accepted("model, latent_copy_last, latent_ego_warp, oracle")
+                    .with_accepted(
+                        ForecastMethod::ALL
+                            .iter()
+                            .map(|m| m.name())
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                    )
             })?;
             Ok(Node::Sink(Box::new(ForecastSink {
                 method,

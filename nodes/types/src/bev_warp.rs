@@ -46,6 +46,16 @@ impl PlanarMotion {
         }
     }
 
+    /// `b_from_a` (`self` is `a_from_b`).
+    pub fn inverse(&self) -> Self {
+        let (s, c) = self.yaw.sin_cos();
+        Self {
+            x: -(c * self.x + s * self.y),
+            y: s * self.x - c * self.y,
+            yaw: wrap_angle(-self.yaw),
+        }
+    }
+
     /// Applies the motion to a point of frame `b`, giving it in frame `a`.
     pub fn apply(&self, point: [f64; 2]) -> [f64; 2] {
         let (s, c) = self.yaw.sin_cos();
@@ -75,6 +85,23 @@ impl LatentGrid {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+
+    /// Metres per cell along x and y.
+    pub fn cell_size(&self) -> [f64; 2] {
+        [
+            (self.x_range[1] - self.x_range[0]) / self.width as f64,
+            (self.y_range[1] - self.y_range[0]) / self.height as f64,
+        ]
+    }
+
+    /// The centre (x, y) of the cell in row `i`, column `j`, in metres.
+    pub fn cell_centre(&self, i: usize, j: usize) -> [f64; 2] {
+        let [cell_x, cell_y] = self.cell_size();
+        [
+            self.x_range[0] + (j as f64 + 0.5) * cell_x,
+            self.y_range[0] + (i as f64 + 0.5) * cell_y,
+        ]
+    }
 }
 
 /// One cell's bilinear sample: up to four cells of the source map (row-major index in one
@@ -89,39 +116,36 @@ pub type WarpTaps = Vec<(u32, f32)>;
 // -> one `WarpTaps` per cell of b, row-major [H * W]
 pub fn warp_taps(grid: &LatentGrid, a_from_b: &PlanarMotion) -> Vec<WarpTaps> {
     let (h, w) = (grid.height, grid.width);
-    let cell_x = (grid.x_range[1] - grid.x_range[0]) / w as f64;
-    let cell_y = (grid.y_range[1] - grid.y_range[0]) / h as f64;
     let mut taps = Vec::with_capacity(h * w);
     for i in 0..h {
         for j in 0..w {
-            let centre_b = [
-                grid.x_range[0] + (j as f64 + 0.5) * cell_x,
-                grid.y_range[0] + (i as f64 + 0.5) * cell_y,
-            ];
-            let [xa, ya] = a_from_b.apply(centre_b);
-            // Continuous cell coordinates in `a`, cell centres at integers.
-            let u = (xa - grid.x_range[0]) / cell_x - 0.5;
-            let v = (ya - grid.y_range[0]) / cell_y - 0.5;
-            let (j0, i0) = (u.floor(), v.floor());
-            let (fu, fv) = ((u - j0) as f32, (v - i0) as f32);
-            let corners = [
-                (i0, j0, (1.0 - fu) * (1.0 - fv)),
-                (i0, j0 + 1.0, fu * (1.0 - fv)),
-                (i0 + 1.0, j0, (1.0 - fu) * fv),
-                (i0 + 1.0, j0 + 1.0, fu * fv),
-            ];
-            taps.push(
-                corners
-                    .iter()
-                    .filter(|&&(ci, cj, _)| {
-                        ci >= 0.0 && cj >= 0.0 && ci < h as f64 && cj < w as f64
-                    })
-                    .map(|&(ci, cj, weight)| ((ci as usize * w + cj as usize) as u32, weight))
-                    .collect(),
-            );
+            taps.push(taps_at(grid, a_from_b.apply(grid.cell_centre(i, j))));
         }
     }
     taps
+}
+
+/// The bilinear taps of the map at `point` (metres, the grid's frame), cell centres at
+/// integer coordinates; corners outside the grid are left out.
+pub fn taps_at(grid: &LatentGrid, point: [f64; 2]) -> WarpTaps {
+    let (h, w) = (grid.height, grid.width);
+    let [cell_x, cell_y] = grid.cell_size();
+    // Continuous cell coordinates, cell centres at integers.
+    let u = (point[0] - grid.x_range[0]) / cell_x - 0.5;
+    let v = (point[1] - grid.y_range[0]) / cell_y - 0.5;
+    let (j0, i0) = (u.floor(), v.floor());
+    let (fu, fv) = ((u - j0) as f32, (v - i0) as f32);
+    let corners = [
+        (i0, j0, (1.0 - fu) * (1.0 - fv)),
+        (i0, j0 + 1.0, fu * (1.0 - fv)),
+        (i0 + 1.0, j0, (1.0 - fu) * fv),
+        (i0 + 1.0, j0 + 1.0, fu * fv),
+    ];
+    corners
+        .iter()
+        .filter(|&&(ci, cj, _)| ci >= 0.0 && cj >= 0.0 && ci < h as f64 && cj < w as f64)
+        .map(|&(ci, cj, weight)| ((ci as usize * w + cj as usize) as u32, weight))
+        .collect()
 }
 
 /// The latent of frame `a` seen from frame `b`: each cell of `b` takes the bilinear sample of
@@ -233,6 +257,13 @@ mod tests {
         assert!((composed.x - a_c.x).abs() < 1e-9);
         assert!((composed.y - a_c.y).abs() < 1e-9);
         assert!((wrap_angle(composed.yaw - a_c.yaw)).abs() < 1e-9);
+        // b_from_a · a_from_b is no motion at all, and b_from_a is what `between` gives.
+        let identity = a_b.inverse().then(&a_b);
+        assert!(identity.x.abs() < 1e-9 && identity.y.abs() < 1e-9 && identity.yaw.abs() < 1e-9);
+        let b_a = PlanarMotion::between(&g_b, &g_a);
+        let inverse = a_b.inverse();
+        assert!((inverse.x - b_a.x).abs() < 1e-9 && (inverse.y - b_a.y).abs() < 1e-9);
+        assert!(wrap_angle(inverse.yaw - b_a.yaw).abs() < 1e-9);
         let action = EgoAction::between(&g_a, 0, &g_b, 500_000).unwrap();
         let from_action = PlanarMotion::of_action(&action);
         assert!((from_action.x - a_b.x).abs() < 1e-9 && (from_action.y - a_b.y).abs() < 1e-9);

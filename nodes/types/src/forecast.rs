@@ -54,10 +54,29 @@ pub enum ForecastMethod {
     LatentEgoWarp,
     /// The tokenizer's own latent of the true future frame: the floor the tokenizer sets.
     Oracle,
+    /// The ego warp with each annotated vehicle's cells carried from its box now to its true
+    /// future box (`agent_warp`): what moving the agents as rigid latent patches can reach.
+    /// It reads the future's annotations, so it is a bound, not a forecast; it is rendered only
+    /// when asked for (`methods`).
+    LatentBoxWarp,
+    /// The model's forecast with the detected agents carried along the trajectories a motion
+    /// head predicts for them (`move_agents`).
+    ModelWithAgents,
 }
 
 impl ForecastMethod {
-    pub const ALL: [ForecastMethod; 4] = [
+    pub const ALL: [ForecastMethod; 6] = [
+        ForecastMethod::Model,
+        ForecastMethod::ModelWithAgents,
+        ForecastMethod::LatentCopyLast,
+        ForecastMethod::LatentEgoWarp,
+        ForecastMethod::Oracle,
+        ForecastMethod::LatentBoxWarp,
+    ];
+
+    /// What a forecast graph renders unless told otherwise: the model and the baselines that
+    /// need no annotations beyond the truth they are scored against.
+    pub const DEFAULT: [ForecastMethod; 4] = [
         ForecastMethod::Model,
         ForecastMethod::LatentCopyLast,
         ForecastMethod::LatentEgoWarp,
@@ -70,7 +89,18 @@ impl ForecastMethod {
             ForecastMethod::LatentCopyLast => "latent_copy_last",
             ForecastMethod::LatentEgoWarp => "latent_ego_warp",
             ForecastMethod::Oracle => "oracle",
+            ForecastMethod::LatentBoxWarp => "latent_box_warp",
+            ForecastMethod::ModelWithAgents => "model_with_agents",
         }
+    }
+
+    /// Whether it forecasts (the model, with or without its agents carried), as opposed to a
+    /// baseline, which is worth rendering only beside a truth.
+    pub fn is_forecast(self) -> bool {
+        matches!(
+            self,
+            ForecastMethod::Model | ForecastMethod::ModelWithAgents
+        )
     }
 
     pub fn parse(text: &str) -> Option<Self> {

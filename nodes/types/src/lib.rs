@@ -11,6 +11,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod action;
+pub mod agent_warp;
 pub mod bev;
 pub mod bev_warp;
 pub mod camera;
@@ -33,8 +34,9 @@ pub mod score_table;
 pub mod splitmix;
 
 pub use action::EgoAction;
+pub use agent_warp::{AgentMotion, Footprint, move_agents};
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
-pub use bev_warp::{LatentGrid, PlanarMotion, WarpTaps, warp_latent, warp_taps};
+pub use bev_warp::{LatentGrid, PlanarMotion, WarpTaps, taps_at, warp_latent, warp_taps};
 pub use camera::{CameraChannel, CameraImage, ImageSet, Intrinsics, NamedImage};
 pub use detected_agents::{DetectedAgent, FrameDetections, TrajectoryMode};
 pub use detection::{Detection, DetectionResults, SubmissionMeta, detection_name_of};

@@ -8,14 +8,16 @@ use std::sync::Arc;
 
 use bevworld_graph::{Models, ParamError};
 use bevworld_types::LatentStatsFile;
+use bevworld_types::object_box::ObjectBox;
 use bevworld_types::{
     BevFeatures, BevGrid, CameraChannel, CameraImage, EgoAction, Forecast, ForecastHorizon,
-    ForecastMethod, FrameMeta, Intrinsics, LatentWindow, LidarPoint, PointCloud, Pose, SensorFrame,
+    ForecastMethod, FrameMeta, Intrinsics, LatentGrid, LatentWindow, LidarPoint, PlanarMotion,
+    PointCloud, Pose, SensorFrame, warp_latent,
 };
 use bevworld_world_model::ResidualShrink;
 use bevworld_world_model::WorldModelConfig;
 use bevworld_world_model::nodes::diffusion_rollout::{self, DiffusionRolloutParams};
-use bevworld_world_model::nodes::future_views::FutureViews;
+use bevworld_world_model::nodes::future_views::{BoxMotion, FutureViews};
 use bevworld_world_model::nodes::latent_history::{HistoryShape, LatentHistory};
 use bevworld_world_model::nodes::model_params::{WorldModelParams, check_pairing};
 use bevworld_world_model::weights::load_sealed_meta;
@@ -899,6 +901,94 @@ fn without_truth_a_baseline_is_rendered_only_when_asked_for_alone() {
     alone.push_frame(frame("a", 0.0));
     alone.push_forecast(with_warp());
     let ready = alone.ready(false);
+    assert_eq!(ready.len(), 1);
+    assert_eq!(ready[0].method, ForecastMethod::LatentEgoWarp);
+}
+
+/// A car 4.5 m long in the context frame `a@0` at global (x, 10), and the same instance in the
+/// frame of `time_s`.
+fn with_car(frame: Arc<SensorFrame>, x: f64) -> Arc<SensorFrame> {
+    let mut frame = SensorFrame::clone(&frame);
+    frame.boxes = vec![ObjectBox {
+        instance_token: "car-1".into(),
+        category: "vehicle.car".into(),
+        global_from_box: Pose::from_translation(DVec3::new(x, 10.0, 0.8)),
+        size: [1.9, 4.5, 1.6],
+        velocity: Some([45.0, 0.0]),
+        attributes: vec!["vehicle.moving".into()],
+        num_pts: 10,
+    }];
+    Arc::new(frame)
+}
+
+#[test]
+fn the_box_warp_carries_a_vehicles_cells_to_its_true_future_box_and_leaves_ground_behind() {
+    // 20 m cells over ±80 m; the ego drives 5 m/s along +x, so at +1 s it is at x = 5. The car
+    // drives from global (−30, 10) (row 4, column 2) to (15, 10): in the future ego frame at
+    // (10, 10), the centre of row 4, column 4.
+    let grid = LatentGrid {
+        channels: 4,
+        height: 8,
+        width: 8,
+        x_range: [-80.0, 80.0],
+        y_range: [-80.0, 80.0],
+    };
+    let mut current = latent("a", 0.0);
+    let plane = 64;
+    Arc::make_mut(&mut current).data[4 * 8 + 2] = 9.0;
+    let at = |latent: &BevFeatures, i: usize, j: usize| latent.data[i * 8 + j];
+    let make = |with_copy: bool| {
+        let mut f = forecast("a", 0.0, 2, "log", 5.0);
+        let model = Arc::clone(&f.horizons[0].latents[0].1);
+        let mut warp = BevFeatures::clone(&model);
+        warp.data = warp_latent(
+            &current.data,
+            &grid,
+            &PlanarMotion {
+                x: 5.0,
+                y: 0.0,
+                yaw: 0.0,
+            },
+            0.0,
+        );
+        let latents = &mut f.horizons[0].latents;
+        latents.push((ForecastMethod::LatentEgoWarp, Arc::new(warp)));
+        if with_copy {
+            latents.push((ForecastMethod::LatentCopyLast, Arc::clone(&current)));
+        }
+        f
+    };
+    let views_of = |with_copy: bool, motion: BoxMotion| {
+        let mut views = FutureViews::new(
+            vec![ForecastMethod::LatentEgoWarp, ForecastMethod::LatentBoxWarp],
+            0.05,
+            64,
+        )
+        .with_box_warp(5.0, motion);
+        views.push_frame(with_car(frame("a", 0.0), -30.0));
+        views.push_frame(frame("a", 0.5));
+        views.push_frame(with_car(frame("a", 1.0), 15.0));
+        views.push_forecast(make(with_copy));
+        views.ready(true)
+    };
+    let ready = views_of(true, BoxMotion::FutureBox);
+    assert_eq!(ready.len(), 2);
+    let (warp, moved) = (&ready[0].latent, &ready[1].latent);
+    assert_eq!(ready[1].method, ForecastMethod::LatentBoxWarp);
+    assert_eq!(moved.meta.global_from_ego, warp.meta.global_from_ego);
+    // The ego warp leaves the car behind, a quarter cell back: 0.75 of it in column 2.
+    assert!((at(warp, 4, 2) - 6.75).abs() < 1e-4);
+    assert!(at(warp, 4, 4).abs() < 1e-6);
+    // The box warp draws it where it went, whole, and the ground where it was.
+    assert!((at(moved, 4, 4) - 9.0).abs() < 1e-4);
+    assert!(at(moved, 4, 2).abs() < 1e-6);
+    // The other channels held no car and hold none.
+    assert!(moved.data[plane..].iter().all(|v| v.abs() < 1e-6));
+    // Its annotated velocity (45 m/s along +x) takes it to the same place in 1 s.
+    let by_velocity = views_of(true, BoxMotion::Velocity);
+    assert_eq!(by_velocity[1].latent.data, moved.data);
+    // Without the current latent (a rollout without baselines) there is nothing to move.
+    let ready = views_of(false, BoxMotion::FutureBox);
     assert_eq!(ready.len(), 1);
     assert_eq!(ready[0].method, ForecastMethod::LatentEgoWarp);
 }

@@ -8,6 +8,9 @@
 //!   (`virtual_frame`). It has no truth.
 //! - `oracle` views carry the tokenizer's latent of the true future frame (from `latent`).
 //! - Baselines are rendered only where there is a truth to score them against.
+//! - `latent_box_warp` views (asked for in `methods`) carry the ego-warped latent with each
+//!   annotated vehicle moved from its box in the context frame to its box in the true future
+//!   frame (`bevworld_types::agent_warp`): a bound that reads the truth, never a forecast.
 //! - A forecast with several draws of the model (`diffusion_rollout`'s `samples`) gives one
 //!   `model` view per draw, numbered by `sample`, the point forecast first.
 //!
@@ -21,9 +24,13 @@ use std::sync::Arc;
 use bevworld_graph::{
     Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, SyncMode, Task,
 };
+use bevworld_types::forecast::ForecastHorizon;
+use bevworld_types::object_box::ObjectBox;
 use bevworld_types::{
-    BevFeatures, Forecast, ForecastMethod, FutureView, SensorFrame, virtual_frame,
+    AgentMotion, BevFeatures, Footprint, Forecast, ForecastMethod, FutureView, LatentGrid,
+    PlanarMotion, SensorFrame, move_agents, virtual_frame,
 };
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 // The node's ports, each named once (`bevworld_graph::Port`).
@@ -35,9 +42,18 @@ const VIEW: Port<FutureView> = Port::new("view");
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct FutureViewsParams {
-    /// What to render: `model`, `latent_copy_last`, `latent_ego_warp`, `oracle`.
+    /// What to render: `model`, `latent_copy_last`, `latent_ego_warp`, `oracle`, and on request
+    /// `latent_box_warp`.
     #[serde(default = "default_methods")]
     pub methods: Vec<String>,
+    /// How far around a vehicle's box `latent_box_warp` carries its cells, in metres.
+    #[serde(default = "default_box_margin")]
+    pub box_margin_m: f64,
+    /// Where `latent_box_warp` carries each vehicle: to its box in the true future frame
+    /// (`future_box`), or along its annotated velocity from its box now (`velocity`: what a
+    /// perfect detector's constant-velocity motion reaches).
+    #[serde(default)]
+    pub box_motion: BoxMotion,
     /// How far a logged frame's time may lie from a forecast's, in seconds.
     #[serde(default = "default_tolerance")]
     pub tolerance_s: f64,
@@ -47,10 +63,24 @@ pub struct FutureViewsParams {
 }
 
 fn default_methods() -> Vec<String> {
-    ForecastMethod::ALL
+    ForecastMethod::DEFAULT
         .iter()
         .map(|m| m.name().to_string())
         .collect()
+}
+/// Where `latent_box_warp` takes each vehicle's future footprint from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BoxMotion {
+    /// Its box in the true future frame (same instance).
+    #[default]
+    FutureBox,
+    /// Its box now, moved by its annotated velocity for the horizon, heading kept.
+    Velocity,
+}
+
+fn default_box_margin() -> f64 {
+    1.25
 }
 fn default_tolerance() -> f64 {
     0.05
@@ -148,6 +178,8 @@ impl<T: Timed> Held<T> {
 
 pub struct FutureViews {
     methods: Vec<ForecastMethod>,
+    box_margin_m: f64,
+    box_motion: BoxMotion,
     tolerance_us: i64,
     max_frames: usize,
     frames: Held<SensorFrame>,
@@ -163,6 +195,8 @@ impl FutureViews {
     pub fn new(methods: Vec<ForecastMethod>, tolerance_s: f64, max_frames: usize) -> Self {
         Self {
             methods,
+            box_margin_m: default_box_margin(),
+            box_motion: BoxMotion::default(),
             tolerance_us: (tolerance_s * 1e6).round() as i64,
             max_frames,
             frames: Held::new(),
@@ -172,6 +206,14 @@ impl FutureViews {
             horizons_without_truth: 0,
             contexts_missing: 0,
         }
+    }
+
+    /// How far around a vehicle's box `latent_box_warp` carries its cells (metres), and where
+    /// it carries them.
+    pub fn with_box_warp(mut self, margin_m: f64, motion: BoxMotion) -> Self {
+        self.box_margin_m = margin_m;
+        self.box_motion = motion;
+        self
     }
 
     pub fn push_frame(&mut self, frame: Arc<SensorFrame>) {
@@ -272,13 +314,24 @@ impl FutureViews {
                 // A baseline is rendered to be scored; without a truth only the forecast is,
                 // unless the graph asks for the baseline alone (to compare it as a forecast).
                 if truth.is_none()
-                    && method != ForecastMethod::Model
+                    && !method.is_forecast()
                     && self.methods.contains(&ForecastMethod::Model)
                 {
                     continue;
                 }
                 let latent = match method {
                     ForecastMethod::Oracle => oracle.clone(),
+                    ForecastMethod::LatentBoxWarp => match &truth {
+                        Some(truth) => box_warp(
+                            forecast,
+                            horizon,
+                            &context,
+                            truth,
+                            self.box_margin_m,
+                            self.box_motion,
+                        ),
+                        None => None,
+                    },
                     other => horizon.latent(other).cloned(),
                 };
                 let Some(latent) = latent else { continue };
@@ -319,6 +372,80 @@ impl FutureViews {
         }
         Some(Some((views, without_truth)))
     }
+}
+
+/// The ego-warped latent of a horizon with every annotated vehicle of the context frame carried
+/// to its future footprint (`motion`: its box in the true future frame, when that frame holds
+/// it, or its box moved by its velocity), all footprints in the context's ego frame. `None`
+/// without the rollout's baselines (the current latent and its ego warp).
+fn box_warp(
+    forecast: &Forecast,
+    horizon: &ForecastHorizon,
+    context: &SensorFrame,
+    truth: &SensorFrame,
+    margin_m: f64,
+    motion: BoxMotion,
+) -> Option<Arc<BevFeatures>> {
+    let current = horizon.latent(ForecastMethod::LatentCopyLast)?;
+    let warped = horizon.latent(ForecastMethod::LatentEgoWarp)?;
+    let global_from_current = forecast.context.global_from_ego;
+    let current_from_global = global_from_current.inverse();
+    let footprint = |object: &ObjectBox| Footprint::of_box(&object.moved(&current_from_global));
+    let agents: Vec<AgentMotion> = context
+        .boxes
+        .iter()
+        .filter(|b| b.is_vehicle())
+        .filter_map(|now| {
+            let then = match motion {
+                BoxMotion::FutureBox => footprint(
+                    truth
+                        .boxes
+                        .iter()
+                        .find(|b| b.instance_token == now.instance_token)?,
+                ),
+                BoxMotion::Velocity => {
+                    let seconds =
+                        (truth.time_of_validity_us - context.time_of_validity_us) as f64 * 1e-6;
+                    let [vx, vy] = now.velocity.unwrap_or([0.0, 0.0]);
+                    let step = current_from_global.transform_vector3(DVec3::new(
+                        vx * seconds,
+                        vy * seconds,
+                        0.0,
+                    ));
+                    let now = footprint(now);
+                    Footprint {
+                        centre: [now.centre[0] + step.x, now.centre[1] + step.y],
+                        ..now
+                    }
+                }
+            };
+            Some(AgentMotion {
+                now: footprint(now),
+                then,
+            })
+        })
+        .collect();
+    let grid = LatentGrid {
+        channels: current.channels.len(),
+        height: current.grid.height,
+        width: current.grid.width,
+        x_range: current.grid.x_range.map(f64::from),
+        y_range: current.grid.y_range.map(f64::from),
+    };
+    let current_from_future =
+        PlanarMotion::between(&global_from_current, &warped.meta.global_from_ego);
+    let data = move_agents(
+        &current.data,
+        &warped.data,
+        &grid,
+        &current_from_future,
+        &agents,
+        margin_m,
+    );
+    Some(Arc::new(BevFeatures {
+        data,
+        ..BevFeatures::clone(warped)
+    }))
 }
 
 pub struct FutureViewsNode {
@@ -403,6 +530,12 @@ fn methods(params: &FutureViewsParams) -> Result<Vec<ForecastMethod>, ParamError
             format!("{} must lie in [0, 1) s", params.tolerance_s),
         ));
     }
+    if !(params.box_margin_m.is_finite() && (0.0..=10.0).contains(&params.box_margin_m)) {
+        return Err(ParamError::field(
+            "box_margin_m",
+            format!("{} must lie in [0, 10] m", params.box_margin_m),
+        ));
+    }
     if params.max_frames == 0 || params.max_frames > 100_000 {
         return Err(ParamError::field(
             "max_frames",
@@ -426,7 +559,8 @@ pub fn register(registry: &mut Registry) {
         |params: &FutureViewsParams| methods(params).map(|_| ()),
         |params: FutureViewsParams| {
             Ok(Node::Task(Box::new(FutureViewsNode {
-                views: FutureViews::new(methods(&params)?, params.tolerance_s, params.max_frames),
+                views: FutureViews::new(methods(&params)?, params.tolerance_s, params.max_frames)
+                    .with_box_warp(params.box_margin_m, params.box_motion),
             })))
         },
     );
