@@ -6,14 +6,14 @@
 //!   cargo run --release -p bevworld-bench --bin forecast_tables -- bench/results/forecast-test.json
 //!
 //! With `--compare LABEL=FILE ...`, the point forecasts of several runs of the same scenes
-//! side by side, per horizon, beside the first run's latent ego warp and oracle.
+//! side by side, per horizon, beside the first run's latent ego warp and oracle. With
+//! `--pooled FILE`, the moving vehicles' scores pooled over every true point.
 
 use bevworld_metrics::forecast_node::{
-    agents_markdown_of, compare_markdown_of, draws_markdown_of, markdown_of,
+    agents_markdown_of, compare_markdown_of, draws_markdown_of, markdown_of, pooled_markdown_of,
 };
 
-const USAGE: &str =
-    "usage: forecast_tables SCORES.json | forecast_tables --compare LABEL=SCORES.json ...";
+const USAGE: &str = "usage: forecast_tables SCORES.json | forecast_tables --compare LABEL=SCORES.json ... | forecast_tables --pooled SCORES.json";
 
 fn read(path: &str) -> serde_json::Value {
     match std::fs::read(path)
@@ -44,6 +44,12 @@ fn main() {
             std::process::exit(2);
         }
         println!("{}", compare_markdown_of(&runs));
+        return;
+    }
+    if let [flag, path] = args.as_slice()
+        && flag == "--pooled"
+    {
+        println!("{}", pooled_markdown_of(&read(path)));
         return;
     }
     let [path] = args.as_slice() else {

@@ -445,6 +445,42 @@ pub fn agents_markdown_of(table: &serde_json::Value) -> String {
     )
 }
 
+/// The moving vehicles' scores pooled over every true point of every scene (the JSON's
+/// `moving_vehicles` figures), per horizon and method: where a few scenes hold few moving
+/// cars, the mean over scenes weighs each of those scenes as much as a busy one, and this
+/// table weighs each point once.
+pub fn pooled_markdown_of(table: &serde_json::Value) -> String {
+    let mut text = String::new();
+    let empty = Vec::new();
+    for row in table["horizons"].as_array().unwrap_or(&empty) {
+        let horizon = row["horizon_s"].as_f64().unwrap_or(f64::NAN);
+        for method in TABLE_METHODS {
+            let Some(moving) = row
+                .get(method)
+                .and_then(|c| c.get("agents"))
+                .and_then(|a| a.get("moving_vehicles"))
+            else {
+                continue;
+            };
+            let show = |key: &str, digits: usize| shown_at(moving, &[key], digits);
+            text.push_str(&format!(
+                "| +{horizon} s | {method} | {} | {} | {} | {} | {} |\n",
+                show("points", 0),
+                show("recall_0.5m", 2),
+                show("recall_1m", 2),
+                show("recall_0.5m_above_ground", 2),
+                show("chamfer_to_forecast", 2),
+            ));
+        }
+    }
+    if text.is_empty() {
+        return text;
+    }
+    format!(
+        "| horizon | method | moving: true points | moving: recall@0.5 m | moving: recall@1 m | moving: recall@0.5 m above ground | moving: Chamfer truth→forecast (m²) |\n|---|---|---|---|---|---|---|\n{text}"
+    )
+}
+
 /// The number at `path` inside `value`, with `digits` decimals; "—" where there is none.
 fn shown_at(value: &serde_json::Value, path: &[&str], digits: usize) -> String {
     path.iter()
@@ -773,7 +809,7 @@ pub fn register(registry: &mut Registry) {
 
 #[cfg(test)]
 mod tests {
-    use super::{ForecastMetricsParams, build, percentile};
+    use super::{ForecastMetricsParams, build, percentile, pooled_markdown_of};
     use crate::reconstruction_node::score_lidar;
     use bevworld_types::{
         BevFeatures, ForecastMethod, FutureView, ObjectBox, Pose, RenderedFuture, SensorFrame,
@@ -996,6 +1032,31 @@ mod tests {
         let table = single.table();
         let row = table["horizons"][0].as_object().expect("row");
         assert!(row.keys().all(|k| !k.starts_with("model_")), "{row:?}");
+    }
+
+    #[test]
+    fn the_pooled_table_shows_each_methods_moving_vehicle_figures_as_the_json_holds_them() {
+        let table = serde_json::json!({"horizons": [{
+            "horizon_s": 1.0,
+            "model": {"agents": {"moving_vehicles": {
+                "points": 200, "recall_0.5m": 0.25, "recall_1m": 0.5,
+                "recall_0.5m_above_ground": 0.125, "chamfer_to_forecast": 3.5}}},
+            "latent_box_warp": {"agents": {"moving_vehicles": {
+                "points": 200, "recall_0.5m": 0.5, "recall_1m": 0.75,
+                "recall_0.5m_above_ground": null, "chamfer_to_forecast": 1.25}}},
+            "oracle": {"chamfer": 0.6}
+        }]});
+        let text = pooled_markdown_of(&table);
+        assert!(
+            text.contains("| +1 s | model | 200 | 0.25 | 0.50 | 0.12 | 3.50 |"),
+            "{text}"
+        );
+        assert!(
+            text.contains("| +1 s | latent_box_warp | 200 | 0.50 | 0.75 | — | 1.25 |"),
+            "{text}"
+        );
+        assert!(!text.contains("oracle"), "no agents, no row: {text}");
+        assert!(pooled_markdown_of(&serde_json::json!({"horizons": []})).is_empty());
     }
 
     #[test]
