@@ -6,7 +6,9 @@
 //!   cargo run --release -p bevworld-bench --bin forecast_tables -- bench/results/forecast-test.json
 //!
 //! With `--compare LABEL=FILE ...`, the point forecasts of several runs of the same scenes
-//! side by side, per horizon, beside the first run's latent ego warp and oracle. With
+//! side by side, per horizon, beside the first run's latent ego warp and oracle;
+//! `LABEL=FILE#METHOD` shows that run's METHOD (`latent_box_warp`, `model_with_agents`)
+//! instead of its point forecast. With
 //! `--pooled FILE`, the moving vehicles' scores pooled over every true point.
 
 use bevworld_metrics::forecast_node::{
@@ -37,7 +39,22 @@ fn main() {
                 eprintln!("{arg}: not LABEL=FILE\n{USAGE}");
                 std::process::exit(2);
             };
-            runs.push((label.to_string(), read(path)));
+            let (path, method) = path.split_once('#').unwrap_or((path, "model"));
+            let mut table = read(path);
+            if method != "model" {
+                let Some(rows) = table["horizons"].as_array_mut() else {
+                    eprintln!("{path}: no horizons");
+                    std::process::exit(1);
+                };
+                for row in rows {
+                    let Some(cell) = row.get(method).cloned() else {
+                        eprintln!("{path}: no {method} at every horizon");
+                        std::process::exit(1);
+                    };
+                    row["model"] = cell;
+                }
+            }
+            runs.push((label.to_string(), table));
         }
         if runs.is_empty() {
             eprintln!("{USAGE}");

@@ -8,7 +8,7 @@
 //!   from where it is now. The cells it leaves take the ground around it. Agents that stand are
 //!   left to the model.
 //! - Its heading follows its path: the turn between the mode's first step and its step at the
-//!   horizon.
+//!   horizon. With `follow: velocity` it goes on at its detected velocity instead, heading kept.
 //! - A forecast waits for the current frame's latent and detections (matched by frame token).
 //!   One whose frame never brings them passes on without the new latent, and is counted.
 
@@ -45,9 +45,23 @@ pub struct MoveAgentsParams {
     /// The detection names moved.
     #[serde(default = "default_classes")]
     pub classes: Vec<String>,
+    /// What carries an agent: its most probable trajectory mode, or its detected velocity.
+    #[serde(default)]
+    pub follow: Follow,
     /// Most forecasts, latents and detections held while they wait for each other.
     #[serde(default = "default_max_held")]
     pub max_held: usize,
+}
+
+/// What carries a detected agent to its future footprint.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Follow {
+    /// The motion head's most probable mode.
+    #[default]
+    Mode,
+    /// The detected velocity, constant.
+    Velocity,
 }
 
 fn default_min_score() -> f64 {
@@ -128,18 +142,41 @@ fn check(params: &MoveAgentsParams) -> Result<(), ParamError> {
     Ok(())
 }
 
-/// Where a detected agent will be `frames_ahead` trajectory steps on, in the current ego
-/// frame, by its most probable mode: `None` past the mode's end or when it moves less than
-/// `min_move_m`.
+/// Where a detected agent will be `frames_ahead` trajectory steps (of `interval_s`) on, in the
+/// current ego frame: by its most probable mode, or its velocity (`follow`). `None` past the
+/// mode's end or when it moves less than `min_move_m`.
 pub fn agent_motion(
     agent: &DetectedAgent,
     frames_ahead: usize,
+    interval_s: f64,
+    follow: Follow,
     min_move_m: f64,
 ) -> Option<AgentMotion> {
+    let now = [agent.centre[0], agent.centre[1]];
+    let footprint = Footprint {
+        centre: now,
+        yaw: agent.yaw,
+        length: agent.size[1],
+        width: agent.size[0],
+    };
+    let moved_enough = |then: [f64; 2]| (then[0] - now[0]).hypot(then[1] - now[1]) >= min_move_m;
+    if follow == Follow::Velocity {
+        let seconds = frames_ahead as f64 * interval_s;
+        let then = [
+            now[0] + agent.velocity[0] * seconds,
+            now[1] + agent.velocity[1] * seconds,
+        ];
+        return (frames_ahead >= 1 && moved_enough(then)).then_some(AgentMotion {
+            now: footprint,
+            then: Footprint {
+                centre: then,
+                ..footprint
+            },
+        });
+    }
     let mode = agent.modes.first()?;
     let then = *mode.positions.get(frames_ahead.checked_sub(1)?)?;
-    let now = [agent.centre[0], agent.centre[1]];
-    if (then[0] - now[0]).hypot(then[1] - now[1]) < min_move_m {
+    if !moved_enough(then) {
         return None;
     }
     // The turn along the path: from its first step's heading to the heading into `then`.
@@ -155,12 +192,6 @@ pub fn agent_motion(
     let turn = match (heading(now, mode.positions[0]), heading(before, then)) {
         (Some(first), Some(last)) => wrap_angle(last - first),
         _ => 0.0,
-    };
-    let footprint = Footprint {
-        centre: now,
-        yaw: agent.yaw,
-        length: agent.size[1],
-        width: agent.size[0],
     };
     Some(AgentMotion {
         now: footprint,
@@ -227,7 +258,8 @@ pub fn with_agents(
             .map(|m| m.positions.len())
             .max()
             .unwrap_or(0);
-        if !on_step || frames_ahead > trajectory_len {
+        let past_modes = params.follow == Follow::Mode && frames_ahead > trajectory_len;
+        if !on_step || past_modes {
             moved.horizons_past_trajectories += 1;
             continue;
         }
@@ -235,7 +267,9 @@ pub fn with_agents(
             .agents
             .iter()
             .filter(|a| a.score >= params.min_score && params.classes.contains(&a.detection_name))
-            .filter_map(|a| agent_motion(a, frames_ahead, params.min_move_m))
+            .filter_map(|a| {
+                agent_motion(a, frames_ahead, interval, params.follow, params.min_move_m)
+            })
             .collect();
         moved.agents += agents.len() as u64;
         let current_from_future =
@@ -456,18 +490,27 @@ mod tests {
             0.9,
             (1..=6).map(|k| [-30.0 + 5.0 * k as f64, 10.0]).collect(),
         );
-        let motion = agent_motion(&straight, 2, 1.0).expect("moves");
+        let motion = agent_motion(&straight, 2, 0.5, Follow::Mode, 1.0).expect("moves");
         assert_eq!(motion.then.centre, [-20.0, 10.0]);
         assert!(motion.then.yaw.abs() < 1e-12);
         assert_eq!(motion.now.centre, [-30.0, 10.0]);
         // Past the mode's end, or standing: left to the model.
-        assert!(agent_motion(&straight, 7, 1.0).is_none());
-        assert!(agent_motion(&straight, 0, 1.0).is_none());
+        assert!(agent_motion(&straight, 7, 0.5, Follow::Mode, 1.0).is_none());
+        assert!(agent_motion(&straight, 0, 0.5, Follow::Mode, 1.0).is_none());
         let standing = agent("car", 0.9, vec![[-30.2, 10.0]; 6]);
-        assert!(agent_motion(&standing, 3, 1.0).is_none());
+        assert!(agent_motion(&standing, 3, 0.5, Follow::Mode, 1.0).is_none());
+        // By its velocity, 4 m/s along +y: 6 m on at the third step, heading kept, and past
+        // the modes' end too; standing still, nowhere.
+        let mut driving = standing.clone();
+        driving.velocity = [0.0, 4.0];
+        let motion = agent_motion(&driving, 3, 0.5, Follow::Velocity, 1.0).expect("moves");
+        assert_eq!(motion.then.centre, [-30.0, 16.0]);
+        assert_eq!(motion.then.yaw, 0.0);
+        assert!(agent_motion(&driving, 8, 0.5, Follow::Velocity, 1.0).is_some());
+        assert!(agent_motion(&standing, 3, 0.5, Follow::Velocity, 1.0).is_none());
         // A left turn: first along +x, then along +y: a quarter turn by the second step.
         let turning = agent("car", 0.9, vec![[-25.0, 10.0], [-25.0, 15.0]]);
-        let motion = agent_motion(&turning, 2, 1.0).expect("moves");
+        let motion = agent_motion(&turning, 2, 0.5, Follow::Mode, 1.0).expect("moves");
         assert!((motion.then.yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
         assert_eq!(motion.then.length, 4.5);
     }
