@@ -419,6 +419,9 @@ fn the_forecast_graph_refuses_actions_and_horizons_it_cannot_forecast() {
         "{}",
         text(&output)
     );
+    let output = check("views.box_base=nothing");
+    assert_eq!(output.status.code(), Some(2));
+    assert!(text(&output).contains("box_base"), "{}", text(&output));
     let output = check("views.box_motion=teleport");
     assert_eq!(output.status.code(), Some(2));
     assert!(

@@ -539,6 +539,22 @@ fn the_vehicle_share_and_moving_weight_flags_are_checked_before_anything_is_writ
         );
         assert_refused_before_writing(&world_model, &run, message);
     }
+    let detector = bevworld_owned(
+        &[
+            "train",
+            "detector",
+            "--config",
+            "configs/models/train-detector-vehicles-tiny.yaml",
+            "--input",
+            "feature",
+            "--out",
+            run.to_str().expect("utf-8"),
+            "--moving-weight",
+            "0.5",
+        ]
+        .map(String::from),
+    );
+    assert_refused_before_writing(&detector, &run, "--moving-weight 0.5: not ≥ 1");
 }
 
 /// The command failed with status 1, its output names `message`, and it wrote no run folder.

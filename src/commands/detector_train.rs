@@ -76,6 +76,10 @@ pub struct TrainDetectorArgs {
     /// Steps instead of the config's.
     #[arg(long, value_name = "N")]
     pub steps: Option<usize>,
+    /// How many times a moving agent's velocity and motion terms count, instead of the
+    /// config's `loss.moving`.
+    #[arg(long, value_name = "W")]
+    pub moving_weight: Option<f64>,
     /// Worker threads (default: the cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
@@ -159,6 +163,7 @@ pub fn run(args: &TrainDetectorArgs) -> Result<ExitCode> {
         out: args.out.clone(),
         resume: args.resume,
         steps: args.steps,
+        moving_weight: args.moving_weight,
         threads: args.threads,
         log_every: args.log_every,
         command: std::iter::once("bevworld".to_string())

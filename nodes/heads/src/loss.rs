@@ -6,9 +6,15 @@
 //!   dataset tells it);
 //! - motion: winner-takes-all over the K modes (the average displacement of the closest mode,
 //!   over the annotated steps) plus the cross-entropy of the mode logits toward that mode.
+//!
+//! With `moving` above 1, an agent that moves (`MOVING_SPEED_MPS`) counts that many times in
+//! its velocity and its motion terms: where most agents stand, an L1 velocity is minimised by
+//! the median, a standing agent's zero, and the standing mode takes the most probability.
 
 use burn::prelude::*;
 use burn::tensor::activation::{log_sigmoid, log_softmax, sigmoid};
+
+use bevworld_types::object_box::MOVING_SPEED_MPS;
 
 use crate::config::{BOX_CHANNELS, DetectorConfig};
 use crate::model::HeadOutputs;
@@ -33,6 +39,13 @@ pub struct LossWeights {
     pub heatmap: f64,
     pub boxes: f64,
     pub motion: f64,
+    /// How many times a moving agent's velocity and motion terms count (1: as any other).
+    #[serde(default = "one")]
+    pub moving: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// Rows `[N, channels]` of `map [B, channels, H, W]` at `(item, cell)` pairs.
@@ -96,16 +109,24 @@ impl DetectorConfig {
         let (modes, steps) = (self.motion.modes, self.motion.steps);
         let mut future = Vec::with_capacity(agents * steps * 2);
         let mut known = Vec::with_capacity(agents * steps);
+        let mut agent_weight = Vec::with_capacity(agents);
         for (item, frame) in targets.iter().enumerate() {
             for object in &frame.objects {
                 rows.push(item * h * w + object.cell);
                 box_truth.extend_from_slice(&object.boxes);
+                let speed = f64::from(object.boxes[8]).hypot(f64::from(object.boxes[9]));
+                let weight = if object.velocity_known && speed > MOVING_SPEED_MPS {
+                    weights.moving as f32
+                } else {
+                    1.0
+                };
+                agent_weight.push(weight);
                 for channel in 0..BOX_CHANNELS {
                     let velocity = channel >= 8;
-                    box_weight.push(if velocity && !object.velocity_known {
-                        0.0f32
-                    } else {
-                        1.0
+                    box_weight.push(match (velocity, object.velocity_known) {
+                        (true, false) => 0.0f32,
+                        (true, true) => weight,
+                        (false, _) => 1.0,
                     });
                 }
                 future.extend(object.future.iter().flatten().copied());
@@ -150,7 +171,8 @@ impl DetectorConfig {
             .sum_dim(2)
             .div(counted)
             .squeeze_dim::<2>(2); // [N, K]
-        let has_future = known.sum_dim(2).squeeze_dim::<2>(2).clamp_max(1.0); // [N, 1]
+        let agent_weight = Tensor::<2>::from_data(TensorData::new(agent_weight, [n, 1]), &device); // [N, 1]
+        let has_future = known.sum_dim(2).squeeze_dim::<2>(2).clamp_max(1.0) * agent_weight; // [N, 1]
         let best = per_mode.clone().argmin(1); // [N, 1]
         let winner = per_mode.gather(1, best.clone()); // [N, 1]
         let log_probability = log_softmax(mode_logits, 1).gather(1, best); // [N, 1]

@@ -148,6 +148,7 @@ fn an_empty_frame_gives_no_detections_and_a_finite_loss() {
         heatmap: 1.0,
         boxes: 1.0,
         motion: 1.0,
+        moving: 1.0,
     };
     let loss = config.loss(outputs, &[&targets], &weights);
     let total = loss.total.into_scalar::<f32>();
@@ -172,6 +173,7 @@ fn the_focal_loss_matches_a_hand_computation() {
         heatmap: 1.0,
         boxes: 0.0,
         motion: 0.0,
+        moving: 1.0,
     };
     let loss = config.loss(outputs, &[&targets], &weights);
     let quarter_ln2 = 0.25 * std::f64::consts::LN_2;
@@ -336,4 +338,55 @@ fn a_config_names_each_bad_field() {
     let unknown = format!("{CONFIG}colour: red\n");
     let error = DetectorConfig::from_yaml(&unknown, "bad.yaml").expect_err("unknown key");
     assert!(error.to_string().contains("colour"), "{error}");
+}
+
+#[test]
+fn a_moving_agent_counts_moving_times_in_its_velocity_and_motion_terms() {
+    // One car moving at √5 m/s: with `moving` 3 its two velocity channels and its motion term
+    // count three times; the other box channels and the heatmap do not change. Standing, the
+    // weight does nothing.
+    let mut config = config();
+    config.classes = vec!["car".into()];
+    let device = Device::flex();
+    let outputs = || HeadOutputs {
+        heatmap: Tensor::<4>::zeros([1, 1, 8, 8], &device),
+        boxes: Tensor::<4>::zeros([1, BOX_CHANNELS, 8, 8], &device),
+        motion: Tensor::<4>::zeros([1, config.motion_channels(), 8, 8], &device),
+    };
+    let weights = |moving: f64| LossWeights {
+        heatmap: 1.0,
+        boxes: 1.0,
+        motion: 1.0,
+        moving,
+    };
+    let scores = |truth: AgentTruth, moving: f64| {
+        let targets = config.targets(&grid(), &[truth]);
+        let loss = config.loss(outputs(), &[&targets], &weights(moving));
+        let velocity: f64 = targets.objects[0].boxes[8..]
+            .iter()
+            .map(|v| f64::from(v.abs()))
+            .sum();
+        (
+            f64::from(loss.heatmap.into_scalar::<f32>()),
+            f64::from(loss.boxes.into_scalar::<f32>()),
+            f64::from(loss.motion.into_scalar::<f32>()),
+            velocity,
+        )
+    };
+    let (heat_1, boxes_1, motion_1, velocity) = scores(car(), 1.0);
+    let (heat_3, boxes_3, motion_3, _) = scores(car(), 3.0);
+    assert!((velocity - 3.0).abs() < 1e-5, "|2| + |1|: {velocity}");
+    assert_eq!(heat_1, heat_3);
+    assert!(
+        (boxes_3 - (boxes_1 + 2.0 * velocity)).abs() < 1e-4,
+        "{boxes_3} {boxes_1}"
+    );
+    assert!(motion_1 > 0.0 && (motion_3 - 3.0 * motion_1).abs() < 1e-4 * motion_1.max(1.0));
+    let parked = AgentTruth {
+        velocity: Some([0.1, 0.0]),
+        ..car()
+    };
+    let (_, boxes_1, motion_1, _) = scores(parked.clone(), 1.0);
+    let (_, boxes_3, motion_3, _) = scores(parked, 3.0);
+    assert_eq!((boxes_1, motion_1), (boxes_3, motion_3));
 }

@@ -17,7 +17,7 @@ use bevworld_types::{
 use bevworld_world_model::ResidualShrink;
 use bevworld_world_model::WorldModelConfig;
 use bevworld_world_model::nodes::diffusion_rollout::{self, DiffusionRolloutParams};
-use bevworld_world_model::nodes::future_views::{BoxMotion, FutureViews};
+use bevworld_world_model::nodes::future_views::{BoxBase, BoxMotion, FutureViews};
 use bevworld_world_model::nodes::latent_history::{HistoryShape, LatentHistory};
 use bevworld_world_model::nodes::model_params::{WorldModelParams, check_pairing};
 use bevworld_world_model::weights::load_sealed_meta;
@@ -958,20 +958,20 @@ fn the_box_warp_carries_a_vehicles_cells_to_its_true_future_box_and_leaves_groun
         }
         f
     };
-    let views_of = |with_copy: bool, motion: BoxMotion| {
+    let views_of = |with_copy: bool, motion: BoxMotion, base: BoxBase| {
         let mut views = FutureViews::new(
             vec![ForecastMethod::LatentEgoWarp, ForecastMethod::LatentBoxWarp],
             0.05,
             64,
         )
-        .with_box_warp(5.0, motion);
+        .with_box_warp(5.0, motion, base);
         views.push_frame(with_car(frame("a", 0.0), -30.0));
         views.push_frame(frame("a", 0.5));
         views.push_frame(with_car(frame("a", 1.0), 15.0));
         views.push_forecast(make(with_copy));
         views.ready(true)
     };
-    let ready = views_of(true, BoxMotion::FutureBox);
+    let ready = views_of(true, BoxMotion::FutureBox, BoxBase::LatentEgoWarp);
     assert_eq!(ready.len(), 2);
     let (warp, moved) = (&ready[0].latent, &ready[1].latent);
     assert_eq!(ready[1].method, ForecastMethod::LatentBoxWarp);
@@ -985,10 +985,20 @@ fn the_box_warp_carries_a_vehicles_cells_to_its_true_future_box_and_leaves_groun
     // The other channels held no car and hold none.
     assert!(moved.data[plane..].iter().all(|v| v.abs() < 1e-6));
     // Its annotated velocity (45 m/s along +x) takes it to the same place in 1 s.
-    let by_velocity = views_of(true, BoxMotion::Velocity);
+    let by_velocity = views_of(true, BoxMotion::Velocity, BoxBase::LatentEgoWarp);
     assert_eq!(by_velocity[1].latent.data, moved.data);
+    // On the model's forecast (here all 1.0, the test forecast's value at 1 s): the car
+    // is drawn where it went and every other cell but the ground it left is the model's.
+    let on_model = views_of(true, BoxMotion::FutureBox, BoxBase::Model);
+    let on_model = &on_model[1].latent;
+    assert!((at(on_model, 4, 4) - 9.0).abs() < 1e-4);
+    assert!(
+        at(on_model, 4, 2).abs() < 1e-6,
+        "the ring's ground, from the current latent"
+    );
+    assert!((at(on_model, 0, 0) - 1.0).abs() < 1e-6);
     // Without the current latent (a rollout without baselines) there is nothing to move.
-    let ready = views_of(false, BoxMotion::FutureBox);
+    let ready = views_of(false, BoxMotion::FutureBox, BoxBase::LatentEgoWarp);
     assert_eq!(ready.len(), 1);
     assert_eq!(ready[0].method, ForecastMethod::LatentEgoWarp);
 }

@@ -89,6 +89,15 @@ impl TrainDetectorConfig {
         ] {
             require_non_negative(&mut problems, field, value);
         }
+        if !(self.loss.moving.is_finite() && self.loss.moving >= 1.0) {
+            problems.push(ConfigProblem::new(
+                "loss.moving",
+                format!(
+                    "{} is not ≥ 1: a moving agent counts at least as much as a standing one",
+                    self.loss.moving
+                ),
+            ));
+        }
         let sets = [
             ("train", &self.train),
             ("val", &self.val),

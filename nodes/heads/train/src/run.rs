@@ -76,6 +76,8 @@ pub struct TrainRequest {
     pub resume: bool,
     /// Steps instead of the config's (the schedule follows).
     pub steps: Option<usize>,
+    /// `loss.moving` instead of the config's.
+    pub moving_weight: Option<f64>,
     pub threads: Option<usize>,
     pub log_every: usize,
     /// The command line, recorded in the weights' metadata.
@@ -131,6 +133,14 @@ pub fn effective_config(request: &TrainRequest) -> Result<TrainDetectorConfig, R
     let mut config = TrainDetectorConfig::from_yaml_file(&request.config)?;
     if let Some(steps) = request.steps {
         config.steps = steps;
+    }
+    if let Some(moving) = request.moving_weight {
+        if !(moving.is_finite() && moving >= 1.0) {
+            return Err(RunError::Input(format!(
+                "--moving-weight {moving}: not ≥ 1, a moving agent counts at least as much as a standing one"
+            )));
+        }
+        config.loss.moving = moving;
     }
     Ok(config)
 }

@@ -253,3 +253,27 @@ fn an_export_that_does_not_fit_its_set_is_refused_naming_what_is_wrong() {
         .expect("a damaged array");
     assert!(error.to_string().contains("0.npy"), "{error}");
 }
+
+#[test]
+fn a_moving_weight_under_one_is_refused_by_name_and_the_default_is_one() {
+    let dir = tempfile::tempdir().expect("dir");
+    let config = train_config(dir.path(), 4, 2);
+    assert_eq!(
+        config.loss.moving, 1.0,
+        "a config without it counts every agent once"
+    );
+    let text = std::fs::read_to_string(dir.path().join("train.yaml")).expect("written");
+    let path = dir.path().join("moving.yaml");
+    std::fs::write(
+        &path,
+        text.replace("motion: 0.1}", "motion: 0.1, moving: 0.5}"),
+    )
+    .expect("written");
+    let error = TrainDetectorConfig::from_yaml_file(&path)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        error.contains("loss.moving") && error.contains("0.5"),
+        "{error}"
+    );
+}

@@ -54,6 +54,11 @@ pub struct FutureViewsParams {
     /// perfect detector's constant-velocity motion reaches).
     #[serde(default)]
     pub box_motion: BoxMotion,
+    /// What `latent_box_warp` carries the vehicles on: the latent ego warp (`latent_ego_warp`:
+    /// the bound of moving agents alone) or the model's forecast (`model`: what the agent
+    /// layer, `move_agents`, would give with a perfect motion head).
+    #[serde(default)]
+    pub box_base: BoxBase,
     /// How far a logged frame's time may lie from a forecast's, in seconds.
     #[serde(default = "default_tolerance")]
     pub tolerance_s: f64,
@@ -77,6 +82,15 @@ pub enum BoxMotion {
     FutureBox,
     /// Its box now, moved by its annotated velocity for the horizon, heading kept.
     Velocity,
+}
+
+/// The latent `latent_box_warp` moves the vehicles on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BoxBase {
+    #[default]
+    LatentEgoWarp,
+    Model,
 }
 
 fn default_box_margin() -> f64 {
@@ -180,6 +194,7 @@ pub struct FutureViews {
     methods: Vec<ForecastMethod>,
     box_margin_m: f64,
     box_motion: BoxMotion,
+    box_base: BoxBase,
     tolerance_us: i64,
     max_frames: usize,
     frames: Held<SensorFrame>,
@@ -197,6 +212,7 @@ impl FutureViews {
             methods,
             box_margin_m: default_box_margin(),
             box_motion: BoxMotion::default(),
+            box_base: BoxBase::default(),
             tolerance_us: (tolerance_s * 1e6).round() as i64,
             max_frames,
             frames: Held::new(),
@@ -208,11 +224,12 @@ impl FutureViews {
         }
     }
 
-    /// How far around a vehicle's box `latent_box_warp` carries its cells (metres), and where
-    /// it carries them.
-    pub fn with_box_warp(mut self, margin_m: f64, motion: BoxMotion) -> Self {
+    /// How far around a vehicle's box `latent_box_warp` carries its cells (metres), where it
+    /// carries them, and on what.
+    pub fn with_box_warp(mut self, margin_m: f64, motion: BoxMotion, base: BoxBase) -> Self {
         self.box_margin_m = margin_m;
         self.box_motion = motion;
+        self.box_base = base;
         self
     }
 
@@ -329,6 +346,7 @@ impl FutureViews {
                             truth,
                             self.box_margin_m,
                             self.box_motion,
+                            self.box_base,
                         ),
                         None => None,
                     },
@@ -376,8 +394,9 @@ impl FutureViews {
 
 /// The ego-warped latent of a horizon with every annotated vehicle of the context frame carried
 /// to its future footprint (`motion`: its box in the true future frame, when that frame holds
-/// it, or its box moved by its velocity), all footprints in the context's ego frame. `None`
-/// without the rollout's baselines (the current latent and its ego warp).
+/// it, or its box moved by its velocity), all footprints in the context's ego frame, on `base`.
+/// `None` without the rollout's baselines (the current latent and its ego warp).
+#[allow(clippy::too_many_arguments)]
 fn box_warp(
     forecast: &Forecast,
     horizon: &ForecastHorizon,
@@ -385,9 +404,13 @@ fn box_warp(
     truth: &SensorFrame,
     margin_m: f64,
     motion: BoxMotion,
+    base: BoxBase,
 ) -> Option<Arc<BevFeatures>> {
     let current = horizon.latent(ForecastMethod::LatentCopyLast)?;
-    let warped = horizon.latent(ForecastMethod::LatentEgoWarp)?;
+    let warped = horizon.latent(match base {
+        BoxBase::LatentEgoWarp => ForecastMethod::LatentEgoWarp,
+        BoxBase::Model => ForecastMethod::Model,
+    })?;
     let global_from_current = forecast.context.global_from_ego;
     let current_from_global = global_from_current.inverse();
     let footprint = |object: &ObjectBox| Footprint::of_box(&object.moved(&current_from_global));
@@ -560,7 +583,7 @@ pub fn register(registry: &mut Registry) {
         |params: FutureViewsParams| {
             Ok(Node::Task(Box::new(FutureViewsNode {
                 views: FutureViews::new(methods(&params)?, params.tolerance_s, params.max_frames)
-                    .with_box_warp(params.box_margin_m, params.box_motion),
+                    .with_box_warp(params.box_margin_m, params.box_motion, params.box_base),
             })))
         },
     );
