@@ -295,6 +295,43 @@ fn tokenizer_floor(f: &mut Figures) -> Result<Row, ReadmeError> {
     ))
 }
 
+/// Cars moved as rigid latent patches on the vehicle pair's forecast, on the world model's
+/// test scenes: by their true future boxes (`latent_box_warp` on the model, a bound) and by
+/// the weighted detector's velocity (`model_with_agents`, the agent layer).
+fn agents_moved(f: &mut Figures) -> Result<Row, ReadmeError> {
+    let (bound, layer) = (
+        "agents-bound-test-vehicles-on-model",
+        "agents-test-vehicles-moving-velocity",
+    );
+    let moving = "agents/moving_vehicles/over_scenes/recall_1m/mean";
+    let pair = |f: &mut Figures, file: &str, method: &str| -> Result<String, ReadmeError> {
+        let mut cells = Vec::new();
+        for horizon in [1.0, 3.0] {
+            let row = f.horizon(file, horizon)?;
+            cells.push(format!(
+                "{:.2}",
+                f.number(file, &format!("{row}/{method}/{moving}"))?
+            ));
+        }
+        Ok(cells.join(" / "))
+    };
+    Ok((
+        format!(
+            "Cars carried as rigid latent patches on the forecast (vehicle tokenizer, not shipped), test scenes ({} contexts)",
+            f.count(layer, "/contexts")?
+        ),
+        format!(
+            "moving vehicles within 1 m at 1 / 3 s: {} carried to their true future boxes (a bound), {} by a detector's velocity (the agent layer), {} the forecast alone, {} the latent ego warp (floor {})",
+            pair(f, bound, "latent_box_warp")?,
+            pair(f, layer, "model_with_agents")?,
+            pair(f, layer, "model")?,
+            pair(f, layer, "latent_ego_warp")?,
+            pair(f, layer, "oracle")?,
+        ),
+        "[agents.md](bench/results/agents.md)",
+    ))
+}
+
 /// An action-control run (`eval control --json`): `scenes` says which branched scenes.
 fn control(
     f: &mut Figures,
@@ -825,6 +862,7 @@ pub fn results_table(dir: &Path) -> Result<String, ReadmeError> {
         )?,
         agents(&mut f)?,
         tokenizer_floor(&mut f)?,
+        agents_moved(&mut f)?,
         control(
             &mut f,
             "control-test",
