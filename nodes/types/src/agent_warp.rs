@@ -42,8 +42,44 @@ impl Footprint {
 
     /// Whether `point` lies within the footprint grown by `margin` metres on every side.
     pub fn contains(&self, point: [f64; 2], margin: f64) -> bool {
-        let [x, y] = self.frame_from_box().inverse().apply(point);
-        x.abs() <= 0.5 * self.length + margin && y.abs() <= 0.5 * self.width + margin
+        Rectangle::of(self).contains(point, margin)
+    }
+}
+
+/// A footprint with its rotation worked out once: `move_agents` tests every cell against
+/// every agent.
+struct Rectangle {
+    centre: [f64; 2],
+    cos: f64,
+    sin: f64,
+    half: [f64; 2],
+    /// Half the diagonal: no point farther along x or y (plus the margin) lies inside.
+    reach: f64,
+}
+
+impl Rectangle {
+    fn of(footprint: &Footprint) -> Self {
+        let (sin, cos) = footprint.yaw.sin_cos();
+        let half = [0.5 * footprint.length, 0.5 * footprint.width];
+        Self {
+            centre: footprint.centre,
+            cos,
+            sin,
+            half,
+            reach: half[0].hypot(half[1]),
+        }
+    }
+
+    fn contains(&self, point: [f64; 2], margin: f64) -> bool {
+        let (dx, dy) = (point[0] - self.centre[0], point[1] - self.centre[1]);
+        let reach = self.reach + margin;
+        if dx.abs() > reach || dy.abs() > reach {
+            return false;
+        }
+        // The point in the box's own axes (the inverse rotation).
+        let x = self.cos * dx + self.sin * dy;
+        let y = -self.sin * dx + self.cos * dy;
+        x.abs() <= self.half[0] + margin && y.abs() <= self.half[1] + margin
     }
 }
 
@@ -93,16 +129,23 @@ pub fn move_agents(
         .flat_map(|i| (0..grid.width).map(move |j| (i, j)))
         .map(|(i, j)| grid.cell_centre(i, j))
         .collect();
-    let in_any_now = |point: [f64; 2]| agents.iter().any(|a| a.now.contains(point, margin_m));
-    // The ground each agent leaves: per channel, the mean of its ring's free cells.
-    let ground: Vec<Option<Vec<f32>>> = agents
+    let now: Vec<Rectangle> = agents.iter().map(|a| Rectangle::of(&a.now)).collect();
+    let then: Vec<Rectangle> = agents.iter().map(|a| Rectangle::of(&a.then)).collect();
+    // Which cells some agent stands on now: computed once, as the ring of each agent leaves
+    // them out.
+    let taken: Vec<bool> = centres
         .iter()
-        .map(|agent| {
+        .map(|&c| now.iter().any(|r| r.contains(c, margin_m)))
+        .collect();
+    // The ground each agent leaves: per channel, the mean of its ring's free cells.
+    let ground: Vec<Option<Vec<f32>>> = now
+        .iter()
+        .map(|rectangle| {
             let ring_cells: Vec<usize> = centres
                 .iter()
                 .enumerate()
-                .filter(|(_, c)| agent.now.contains(**c, margin_m + ring) && !in_any_now(**c))
-                .map(|(index, _)| index)
+                .filter(|&(k, c)| !taken[k] && rectangle.contains(*c, margin_m + ring))
+                .map(|(k, _)| k)
                 .collect();
             (!ring_cells.is_empty()).then(|| {
                 (0..grid.channels)
@@ -119,7 +162,9 @@ pub fn move_agents(
         let point = current_from_future.apply(centre);
         let arriving = agents
             .iter()
-            .filter(|a| a.then.contains(point, margin_m))
+            .zip(&then)
+            .filter(|(_, r)| r.contains(point, margin_m))
+            .map(|(a, _)| a)
             .min_by(|a, b| {
                 distance(a.then.centre, point).total_cmp(&distance(b.then.centre, point))
             });
@@ -136,9 +181,10 @@ pub fn move_agents(
         }
         let left = agents
             .iter()
+            .zip(&now)
             .zip(&ground)
-            .filter(|(a, _)| a.now.contains(point, margin_m))
-            .min_by(|(a, _), (b, _)| {
+            .filter(|((_, r), _)| r.contains(point, margin_m))
+            .min_by(|((a, _), _), ((b, _), _)| {
                 distance(a.now.centre, point).total_cmp(&distance(b.now.centre, point))
             });
         if let Some((_, Some(ground))) = left {
