@@ -357,8 +357,10 @@ impl MoveAgentsNode {
             };
             match found {
                 Some((latent, detections)) => {
+                    // A latent of another kind than the forecast's is a graph wired to two
+                    // tokenizers: every frame would fail alike, so the run stops, naming both.
                     let moved = with_agents(&mut forecast, &latent, &detections, &self.params)
-                        .map_err(NodeError::item)?;
+                        .map_err(NodeError::fatal)?;
                     self.agents += moved.agents;
                     self.horizons_past_trajectories += moved.horizons_past_trajectories;
                 }
