@@ -74,19 +74,7 @@ impl InputSpec {
         let behind = match previous {
             Some(previous) => {
                 let standardised = self.standardised(previous.values)?;
-                let grid = LatentGrid {
-                    channels: self.channels,
-                    height: self.grid.height,
-                    width: self.grid.width,
-                    x_range: [
-                        f64::from(self.grid.x_range[0]),
-                        f64::from(self.grid.x_range[1]),
-                    ],
-                    y_range: [
-                        f64::from(self.grid.y_range[0]),
-                        f64::from(self.grid.y_range[1]),
-                    ],
-                };
+                let grid = LatentGrid::of(&self.grid, self.channels);
                 let previous_from_current =
                     PlanarMotion::between(&previous.global_from_ego, &current.global_from_ego);
                 warp_latent(&standardised, &grid, &previous_from_current, 0.0)

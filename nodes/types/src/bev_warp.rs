@@ -5,6 +5,7 @@
 
 use crate::EgoAction;
 use crate::action::wrap_angle;
+use crate::bev::BevGrid;
 use crate::pose::{Pose, yaw_of};
 
 /// A planar rigid motion: the pose of ego frame `b` in ego frame `a`'s coordinates
@@ -78,6 +79,17 @@ pub struct LatentGrid {
 }
 
 impl LatentGrid {
+    /// The grid of a `[channels, H, W]` map laid out on `grid`.
+    pub fn of(grid: &BevGrid, channels: usize) -> Self {
+        Self {
+            channels,
+            height: grid.height,
+            width: grid.width,
+            x_range: grid.x_range.map(f64::from),
+            y_range: grid.y_range.map(f64::from),
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.channels * self.height * self.width
     }

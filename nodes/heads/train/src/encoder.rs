@@ -126,13 +126,7 @@ fn warp_tensors(
     previous_from_current: &PlanarMotion,
     device: &Device,
 ) -> WarpTensors {
-    let latent_grid = LatentGrid {
-        channels: 1,
-        height: grid.height,
-        width: grid.width,
-        x_range: [f64::from(grid.x_range[0]), f64::from(grid.x_range[1])],
-        y_range: [f64::from(grid.y_range[0]), f64::from(grid.y_range[1])],
-    };
+    let latent_grid = LatentGrid::of(grid, 1);
     let taps = warp_taps(&latent_grid, previous_from_current);
     let cells = taps.len();
     let mut indices = vec![0i64; 4 * cells];

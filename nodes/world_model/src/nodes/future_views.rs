@@ -448,13 +448,7 @@ fn box_warp(
             })
         })
         .collect();
-    let grid = LatentGrid {
-        channels: current.channels.len(),
-        height: current.grid.height,
-        width: current.grid.width,
-        x_range: current.grid.x_range.map(f64::from),
-        y_range: current.grid.y_range.map(f64::from),
-    };
+    let grid = LatentGrid::of(&current.grid, current.channels.len());
     let current_from_future =
         PlanarMotion::between(&global_from_current, &warped.meta.global_from_ego);
     let data = move_agents(

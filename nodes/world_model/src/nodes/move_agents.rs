@@ -19,6 +19,7 @@ use bevworld_graph::{
     Figures, Inputs, KindSpec, Node, NodeError, Outputs, ParamError, Port, Registry, SyncMode, Task,
 };
 use bevworld_types::action::wrap_angle;
+use bevworld_types::detection::DETECTION_NAMES;
 use bevworld_types::{
     AgentMotion, BevFeatures, DetectedAgent, Footprint, Forecast, ForecastMethod, FrameDetections,
     LatentGrid, PlanarMotion, move_agents,
@@ -89,20 +90,6 @@ fn default_classes() -> Vec<String> {
 fn default_max_held() -> usize {
     64
 }
-
-/// The challenge's detection names, which `classes` is checked against.
-const DETECTION_NAMES: [&str; 10] = [
-    "car",
-    "truck",
-    "bus",
-    "trailer",
-    "construction_vehicle",
-    "pedestrian",
-    "motorcycle",
-    "bicycle",
-    "traffic_cone",
-    "barrier",
-];
 
 fn check(params: &MoveAgentsParams) -> Result<(), ParamError> {
     if !(params.min_score.is_finite() && (0.0..=1.0).contains(&params.min_score)) {
@@ -221,13 +208,7 @@ pub fn with_agents(
     params: &MoveAgentsParams,
 ) -> Result<Moved, String> {
     let interval = detections.interval_s;
-    let grid = LatentGrid {
-        channels: current.channels.len(),
-        height: current.grid.height,
-        width: current.grid.width,
-        x_range: current.grid.x_range.map(f64::from),
-        y_range: current.grid.y_range.map(f64::from),
-    };
+    let grid = LatentGrid::of(&current.grid, current.channels.len());
     let mut moved = Moved::default();
     for horizon in &mut forecast.horizons {
         let Some(model) = horizon.latent(ForecastMethod::Model).cloned() else {
