@@ -477,6 +477,18 @@ fn the_lidar_termination_weight_is_checked_recorded_and_logged() {
 }
 
 #[test]
+fn the_density_sparsity_weight_is_checked_recorded_and_logged() {
+    // Off in the committed config. The normalised prior lies in [0, 1]; a field trained for
+    // two steps is far from empty.
+    a_loss_weight_flag_is_checked_recorded_and_logged(
+        "density-sparsity",
+        "density_sparsity",
+        "loss_sparsity",
+        1e-3..1.0,
+    );
+}
+
+#[test]
 fn the_peak_learning_rate_flag_is_checked_recorded_and_followed() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = dir.path().join("data");

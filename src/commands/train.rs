@@ -162,6 +162,11 @@ pub struct TrainTokenizerArgs {
     /// a stop there, not only for the right mean depth.
     #[arg(long, value_name = "W")]
     pub lidar_termination: Option<f64>,
+    /// Weight of the sparsity prior on the field's opacity at every voxel centre, overriding
+    /// the config's `loss.density_sparsity` (0: off; `finetune-tokenizer-sparse-tiny.yaml`
+    /// sets it): it asks for empty air, which empty-space skipping then skips.
+    #[arg(long, value_name = "W")]
+    pub density_sparsity: Option<f64>,
     /// Keep an exponential moving average of the parameters with this decay per step, and
     /// validate and ship it, overriding the config's `ema_decay` (0.995 in the committed tiny
     /// config); `off` ships the last iterate. The modality ablation and the nuScenes fit were
@@ -191,7 +196,7 @@ pub struct TrainTokenizerArgs {
 
 /// The flag that sets each config field an override can refuse, so that the refusal names the
 /// flag the user typed.
-const FLAG_OF_FIELD: [(&str, &str); 10] = [
+const FLAG_OF_FIELD: [(&str, &str); 11] = [
     ("optimizer.lr", "--lr"),
     ("rays.lidar_vehicle_share", "--lidar-vehicle-share"),
     ("ema_decay", "--ema-decay"),
@@ -200,6 +205,7 @@ const FLAG_OF_FIELD: [(&str, &str); 10] = [
     ("loss.lidar_l1", "--lidar-l1"),
     ("loss.lidar_distortion", "--lidar-distortion"),
     ("loss.lidar_termination", "--lidar-termination"),
+    ("loss.density_sparsity", "--density-sparsity"),
     ("render.camera_stride", "--camera-stride"),
     ("steps", "--steps"),
 ];
@@ -249,6 +255,7 @@ fn request(args: &TrainTokenizerArgs) -> Result<TrainRequest> {
             lidar_l1: args.lidar_l1,
             lidar_distortion: args.lidar_distortion,
             lidar_termination: args.lidar_termination,
+            density_sparsity: args.density_sparsity,
             vgg: args.vgg.clone(),
         },
         until: args.until,

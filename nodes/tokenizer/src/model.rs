@@ -221,6 +221,35 @@ impl Tokenizer {
         }
     }
 
+    /// The model with its encoder (backbones, pillar net, fusion, compression) taking no
+    /// gradients: a fine-tune of the decoder alone. The latent of every frame, and with it
+    /// everything paired with the latent (its statistics, a world model, exported features,
+    /// detectors), stays what it was; only how a latent is rendered changes.
+    pub fn with_encoder_fixed(self) -> Self {
+        Self {
+            image_backbone: self.image_backbone.no_grad(),
+            pillar_net: self.pillar_net.no_grad(),
+            lidar_backbone: self.lidar_backbone.no_grad(),
+            fusion: self.fusion.no_grad(),
+            compress: self.compress.no_grad(),
+            ..self
+        }
+    }
+
+    /// This model's decoder behind `source`'s encoder. A decoder fine-tune's weight average
+    /// takes the encoder from the iterate, so that the shipped encoder is bit for bit the one
+    /// it started from (an average of a constant is the constant only up to rounding).
+    pub fn with_encoder_of(self, source: &Tokenizer) -> Self {
+        Self {
+            image_backbone: source.image_backbone.clone(),
+            pillar_net: source.pillar_net.clone(),
+            lidar_backbone: source.lidar_backbone.clone(),
+            fusion: source.fusion.clone(),
+            compress: source.compress.clone(),
+            ..self
+        }
+    }
+
     /// The depth a ray's remaining transmittance adds to its expected depth (`far` with
     /// `render.escape_at_far`, else 0).
     pub fn escape_depth(&self) -> f32 {

@@ -81,6 +81,11 @@ pub struct LossWeights {
     /// stop there). 0 (the default) leaves it out.
     #[serde(default)]
     pub lidar_termination: f64,
+    /// The sparsity prior on the field's opacity at every voxel centre
+    /// (`sparsity::density_sparsity`): asks for empty air, which empty-space skipping then
+    /// skips. 0 (the default) leaves it out.
+    #[serde(default)]
+    pub density_sparsity: f64,
     /// The perceptual (VGG16) term; needs `perceptual_weights`, else it is off with a warning.
     pub perceptual: f64,
     /// The generator's adversarial (hinge) term on the rendered cameras.
@@ -91,6 +96,19 @@ pub struct LossWeights {
     pub gan_start: usize,
     /// Channels of the patch discriminator's first layer.
     pub discriminator_channels: usize,
+}
+
+/// Which parameters a run trains.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrainedParts {
+    /// Every parameter.
+    #[default]
+    Whole,
+    /// The decoder alone (the lift, the alpha head, the RGB upsampler, the background): the
+    /// encoder of `init` stays as it is, and so does every latent it makes
+    /// (`Tokenizer::with_encoder_fixed`). Needs `init`.
+    Decoder,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -134,6 +152,10 @@ pub struct TrainConfig {
     /// zero. They must be of this model.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init: Option<PathBuf>,
+    /// Which parameters train: `whole` (the default) or `decoder`, a fine-tune of `init`'s
+    /// decoder that leaves its latents as they are.
+    #[serde(default)]
+    pub trains: TrainedParts,
     pub data: DataConfig,
 }
 
@@ -205,8 +227,15 @@ impl TrainConfig {
             ("loss.lidar_l1", self.loss.lidar_l1),
             ("loss.lidar_distortion", self.loss.lidar_distortion),
             ("loss.lidar_termination", self.loss.lidar_termination),
+            ("loss.density_sparsity", self.loss.density_sparsity),
         ] {
             require_non_negative(&mut problems, name, value);
+        }
+        if self.trains == TrainedParts::Decoder && self.init.is_none() {
+            problems.push(ConfigProblem::new(
+                "trains",
+                "decoder, without init (a decoder fine-tune keeps the encoder of the weights it starts from: name them in init)",
+            ));
         }
         let share = self.rays.lidar_vehicle_share;
         if !(0.0..=1.0).contains(&share) {

@@ -13,11 +13,12 @@ pub mod distortion;
 pub mod losses;
 pub mod perceptual;
 pub mod run;
+pub mod sparsity;
 pub mod termination;
 pub mod terms;
 pub mod trainer;
 
-pub use config::{LidarDraw, LossWeights, TrainConfig};
+pub use config::{LidarDraw, LossWeights, TrainConfig, TrainedParts};
 pub use run::{Overrides, Progress, RunError, Targets, TrainRequest, TrainSummary, train};
 pub use terms::{Term, TermValues};
 pub use trainer::{StepReport, TrainError, Trainer, ValidationReport};

@@ -37,6 +37,7 @@ pub struct Overrides {
     pub lidar_l1: Option<f64>,
     pub lidar_distortion: Option<f64>,
     pub lidar_termination: Option<f64>,
+    pub density_sparsity: Option<f64>,
     /// torchvision's VGG16 weights for the perceptual term.
     pub vgg: Option<PathBuf>,
 }
@@ -174,6 +175,7 @@ fn configs(request: &TrainRequest) -> Result<(TrainConfig, TokenizerConfig), Run
         (set.lidar_l1, &mut config.loss.lidar_l1),
         (set.lidar_distortion, &mut config.loss.lidar_distortion),
         (set.lidar_termination, &mut config.loss.lidar_termination),
+        (set.density_sparsity, &mut config.loss.density_sparsity),
         (
             set.lidar_vehicle_share,
             &mut config.rays.lidar_vehicle_share,

@@ -21,13 +21,15 @@ pub enum Term {
     Perceptual,
     /// The generator's adversarial (hinge) term.
     Gan,
+    /// The sparsity prior on the field's opacity at every voxel centre.
+    Sparsity,
     /// The patch discriminator's own hinge loss (its own step, not the generator's).
     Discriminator,
 }
 
 impl Term {
     /// Every term, in the order a frame's loss sums them.
-    pub const ALL: [Term; 8] = [
+    pub const ALL: [Term; 9] = [
         Term::Lidar,
         Term::Distortion,
         Term::Termination,
@@ -35,6 +37,7 @@ impl Term {
         Term::RgbSquared,
         Term::Perceptual,
         Term::Gan,
+        Term::Sparsity,
         Term::Discriminator,
     ];
 
@@ -48,6 +51,7 @@ impl Term {
             Term::Termination => "loss_termination",
             Term::Perceptual => "loss_perceptual",
             Term::Gan => "loss_gan",
+            Term::Sparsity => "loss_sparsity",
             Term::Discriminator => "loss_discriminator",
         }
     }
@@ -62,6 +66,7 @@ impl Term {
             Term::Termination => "LiDAR termination loss",
             Term::Perceptual => "perceptual loss",
             Term::Gan => "GAN loss",
+            Term::Sparsity => "density sparsity prior",
             Term::Discriminator => "discriminator loss",
         }
     }
@@ -76,6 +81,7 @@ impl Term {
             Term::Termination => weights.lidar_termination,
             Term::Perceptual => weights.perceptual,
             Term::Gan => weights.gan_generator,
+            Term::Sparsity => weights.density_sparsity,
             Term::Discriminator => weights.gan_discriminator,
         }
     }

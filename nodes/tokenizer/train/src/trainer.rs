@@ -29,7 +29,7 @@ use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 
-use crate::config::TrainConfig;
+use crate::config::{TrainConfig, TrainedParts};
 use crate::data::{TrainingFrame, draw_lidar};
 use crate::discriminator::{
     PatchDiscriminator, PatchDiscriminatorConfig, discriminator_hinge, generator_hinge,
@@ -37,12 +37,13 @@ use crate::discriminator::{
 use crate::distortion::distortion;
 use crate::losses::{l1, mse};
 use crate::perceptual::{PerceptualError, PerceptualLoss, TORCHVISION_VGG16};
+use crate::sparsity::density_sparsity;
 use crate::termination::{termination_nll, termination_targets};
 use crate::terms::{Term, TermValues};
 
 /// The columns of the run's `metrics.csv`, in the order older logs have them; a column added
 /// later goes at the end. Every `Term`'s column is here (a test checks it).
-pub const COLUMNS: [&str; 18] = [
+pub const COLUMNS: [&str; 19] = [
     "step",
     "phase",
     "lr",
@@ -61,6 +62,7 @@ pub const COLUMNS: [&str; 18] = [
     "loss_termination",
     "loss_rgb_squared",
     "cameras_unscored",
+    "loss_sparsity",
 ];
 
 /// `RUN/curves.png`: the training loss, the validation PSNR and the validation Chamfer.
@@ -262,6 +264,14 @@ fn load_optimizer(
         .map_err(|e| checkpoint::io_error(path, format!("{e:?}")))
 }
 
+/// The model with the parameters the config keeps fixed taking no gradients.
+fn fixed_as_configured(config: &TrainConfig, model: Tokenizer) -> Tokenizer {
+    match config.trains {
+        TrainedParts::Whole => model,
+        TrainedParts::Decoder => model.with_encoder_fixed(),
+    }
+}
+
 fn scalar(tensor: Tensor<1>) -> f64 {
     let value: f32 = tensor.into_scalar();
     f64::from(value)
@@ -281,7 +291,7 @@ impl Trainer {
             return Err(TrainError::NoFrames);
         }
         let device = device.clone().autodiff();
-        let model = model_config.init_seeded(config.seed, &device);
+        let model = fixed_as_configured(&config, model_config.init_seeded(config.seed, &device));
         let discriminator = seeded_init(config.seed ^ DISCRIMINATOR_SEED, &device, |device| {
             PatchDiscriminatorConfig::new(config.loss.discriminator_channels).init(device)
         });
@@ -321,7 +331,10 @@ impl Trainer {
     /// Starts from trained weights (`init`) instead of the seeded initialisation: the model
     /// and its moving average both begin there; the optimiser's moments start at zero.
     pub fn start_from(mut self, path: &Path) -> Result<Self, TrainError> {
-        self.model = load_weights(&self.model_config, path, &self.device)?;
+        self.model = fixed_as_configured(
+            &self.config,
+            load_weights(&self.model_config, path, &self.device)?,
+        );
         if self.weight_average.is_some() {
             self.weight_average = Some(self.model.valid());
         }
@@ -345,7 +358,10 @@ impl Trainer {
     pub fn resume(mut self, run: &Path) -> Result<Self, TrainError> {
         let (checkpoint, state) = checkpoint::latest(run)?;
         let file = |name: &str| checkpoint.file(name);
-        self.model = load_weights(&self.model_config, &file(files::MODEL), &self.device)?;
+        self.model = fixed_as_configured(
+            &self.config,
+            load_weights(&self.model_config, &file(files::MODEL), &self.device)?,
+        );
         self.optimizer = load_optimizer(&self.config, &file(files::OPTIMIZER))?;
         self.discriminator = load_module(
             PatchDiscriminatorConfig::new(self.config.loss.discriminator_channels)
@@ -488,7 +504,11 @@ impl Trainer {
             .learning_rate(self.step, self.config.steps);
         self.model = self.optimizer.step(lr, self.model.clone(), grads);
         if let (Some(decay), Some(average)) = (self.config.ema_decay, self.weight_average.take()) {
-            self.weight_average = Some(ema::update(average, &self.model, decay, step)?);
+            let average = ema::update(average, &self.model, decay, step)?;
+            self.weight_average = Some(match self.config.trains {
+                TrainedParts::Whole => average,
+                TrainedParts::Decoder => average.with_encoder_of(&self.model.valid()),
+            });
         }
 
         // The discriminator learns from the same images, the renders detached from the tokenizer.
@@ -760,6 +780,9 @@ fn frame_outcome(
             terms.push((Term::Gan, adversarial));
         }
         images = Some((camera.rgb.detach(), camera.target));
+    }
+    if weights.density_sparsity > 0.0 {
+        terms.push((Term::Sparsity, density_sparsity(model, &voxels)));
     }
     let mut values = TermValues::default();
     let mut loss = Tensor::<1>::zeros([1], device);

@@ -292,6 +292,10 @@ fn bad_training_configs_name_every_field() {
     config.optimizer.decay_steps = Some(0);
     config.ema_decay = Some(1.0);
     config.rays.lidar_vehicle_share = 1.5;
+    config.loss.density_sparsity = -0.01;
+    // A decoder fine-tune with no weights to take the encoder from.
+    config.init = None;
+    config.trains = bevworld_tokenizer_train::TrainedParts::Decoder;
     let problems = config
         .problems()
         .iter()
@@ -310,6 +314,8 @@ fn bad_training_configs_name_every_field() {
         "optimizer.decay_steps",
         "ema_decay",
         "rays.lidar_vehicle_share",
+        "loss.density_sparsity",
+        "trains",
     ] {
         assert!(
             problems.contains(field),
@@ -341,6 +347,16 @@ fn bad_training_configs_name_every_field() {
         .to_string();
     assert!(
         message.contains("bad-draw.yaml") && message.contains("nearest"),
+        "{message}"
+    );
+    // An unknown part to train names the file and the value.
+    let path = dir.path().join("bad-trains.yaml");
+    std::fs::write(&path, format!("trains: encoder\n{shipped}")).expect("write");
+    let message = TrainConfig::from_yaml_file(&path)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        message.contains("bad-trains.yaml") && message.contains("encoder"),
         "{message}"
     );
 }
@@ -426,6 +442,19 @@ fn the_shipped_training_configs_load() {
         assert!(config.problems().is_empty());
         assert_eq!(model.name, format!("tokenizer-{name}"));
     }
+    // The sparse fine-tune: the shipped weights' decoder, with the prior.
+    let (sparse, model) = TrainConfig::from_yaml_file(
+        &root().join("configs/models/finetune-tokenizer-sparse-tiny.yaml"),
+    )
+    .expect("the sparse fine-tune config");
+    assert_eq!(model, configs().1);
+    assert_eq!(
+        sparse.trains,
+        bevworld_tokenizer_train::TrainedParts::Decoder
+    );
+    assert!(sparse.loss.density_sparsity > 0.0);
+    let init = sparse.init.expect("a fine-tune starts from weights");
+    assert!(root().join(&init).is_file(), "{}", init.display());
 }
 
 /// The vehicle fine-tune is the recipe but for its start, its length and rate, and the share
@@ -1078,4 +1107,126 @@ fn a_validation_frame_that_fails_fails_the_validation_with_any_thread_count() {
             other => panic!("{threads} threads: a failed validation read {other:?}"),
         }
     }
+}
+
+#[test]
+fn the_sparsity_prior_is_the_normalised_cauchy_of_alpha_by_hand() {
+    use bevworld_tokenizer_train::sparsity::{cauchy_of_alpha, empty_alpha};
+    // ε is what skipping calls empty.
+    assert_eq!(empty_alpha(), 1e-3);
+    // α = 0, ε, 1: ln 1, ln 2 and ln(1 + 1/ε), over 3 · ln(1 + 1/ε):
+    // (0 + 0.693147 + 6.908755) / (3 · 6.908755) = 0.366777.
+    let alpha = Tensor::<1>::from_floats([0.0, 1e-3, 1.0], &Device::flex());
+    let prior: f32 = cauchy_of_alpha(alpha, 1e-3).into_scalar();
+    assert!((prior - 0.366777).abs() < 1e-5, "{prior}");
+    // Empty everywhere: 0; opaque everywhere: 1.
+    for (alpha, expected) in [(0.0, 0.0), (1.0, 1.0)] {
+        let all = Tensor::<1>::from_floats([alpha; 4], &Device::flex());
+        let prior: f32 = cauchy_of_alpha(all, 1e-3).into_scalar();
+        assert!((prior - expected).abs() < 1e-6, "{alpha}: {prior}");
+    }
+}
+
+#[test]
+fn the_sparsity_term_joins_the_loss_only_when_weighted() {
+    let (without, with) = steps_without_and_with(|c, w| c.loss.density_sparsity = w, 0.01);
+    assert_eq!(without.term(Term::Sparsity), None);
+    let term = with.term(Term::Sparsity).expect("sparsity term");
+    // An untrained field has α near 0.5 everywhere: ln(1 + 500) / ln(1001) = 0.90.
+    assert!(term > 0.8 && term < 1.0, "{term}");
+    assert_terms_unchanged(&without, &with);
+    assert_total_grows_by(&without, &with, 0.01 * term);
+}
+
+/// The encoder's parameters of a tokenizer (every float of the modules that make the latent),
+/// and the decoder's, from the module's record by name.
+fn encoder_and_decoder_values(model: &bevworld_tokenizer::Tokenizer) -> (Vec<f32>, Vec<f32>) {
+    use burn::module::ModuleVisitor;
+    struct Split {
+        path: Vec<String>,
+        encoder: Vec<f32>,
+        decoder: Vec<f32>,
+    }
+    impl ModuleVisitor for Split {
+        fn enter_module(&mut self, name: &str, _: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _: &str, _: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let data = param.val().into_data().try_to_vec::<f32>().expect("f32");
+            let top = self.path.first().map(String::as_str).unwrap_or("");
+            let encoder = [
+                "image_backbone",
+                "pillar_net",
+                "lidar_backbone",
+                "fusion",
+                "compress",
+            ];
+            if encoder.contains(&top) {
+                self.encoder.extend(data);
+            } else {
+                self.decoder.extend(data);
+            }
+        }
+    }
+    let mut split = Split {
+        path: Vec::new(),
+        encoder: Vec::new(),
+        decoder: Vec::new(),
+    };
+    model.valid().visit(&mut split);
+    (split.encoder, split.decoder)
+}
+
+#[test]
+fn a_decoder_fine_tune_keeps_the_encoder_and_every_latent_bit_for_bit() {
+    let (mut config, model) = configs();
+    config.rays.lidar_rays = 256;
+    config.rays.cameras_per_step = 2;
+    config.loss.density_sparsity = 0.01;
+    // Weights to start from: one step of a whole run, so that they are not the seed's.
+    let mut first = trainer(config.clone(), model.clone(), frames().clone());
+    first.train_step().expect("step");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let weights = dir.path().join("tokenizer.bpk");
+    first.save_weights(&weights).expect("weights");
+    let start = bevworld_tokenizer::load_weights(&model, &weights, &Device::flex()).expect("load");
+    let (encoder, decoder) = encoder_and_decoder_values(&start);
+    assert!(!encoder.is_empty() && !decoder.is_empty());
+
+    config.init = Some(weights.clone());
+    config.trains = bevworld_tokenizer_train::TrainedParts::Decoder;
+    let mut tuned = trainer(config, model, frames().clone())
+        .start_from(&weights)
+        .expect("the weights load");
+    let latent = training_latent(&tuned, &frames()[0]);
+    for _ in 0..3 {
+        tuned.train_step().expect("step");
+    }
+    // The iterate and the shipped average: the encoder as it was, to the bit; the decoder moved.
+    for (what, model) in [
+        ("iterate", tuned.model().valid()),
+        ("average", tuned.shipped_model()),
+    ] {
+        let (now_encoder, now_decoder) = encoder_and_decoder_values(&model);
+        assert!(now_encoder == encoder, "the {what}'s encoder changed");
+        assert!(now_decoder != decoder, "the {what}'s decoder did not train");
+    }
+    assert_eq!(training_latent(&tuned, &frames()[0]), latent);
+
+    // A checkpoint resumed keeps it fixed too.
+    let run = dir.path().join("run");
+    tuned.save_checkpoint(&run).expect("checkpoint");
+    let (mut config, model) = configs();
+    config.rays.lidar_rays = 256;
+    config.rays.cameras_per_step = 2;
+    config.init = Some(weights);
+    config.trains = bevworld_tokenizer_train::TrainedParts::Decoder;
+    let mut resumed = trainer(config, model, frames().clone())
+        .resume(&run)
+        .expect("resume");
+    resumed.train_step().expect("step");
+    assert!(encoder_and_decoder_values(&resumed.shipped_model()).0 == encoder);
 }
