@@ -7,8 +7,15 @@
 //!   point), densely and with empty-space skipping + early stop, with the skipping's error
 //!   against the dense render (LiDAR depth, camera colour).
 //!
+//! - the render's parts: the marches of the camera and of the LiDAR rays, dense and skipping,
+//!   the RGB upsampler and the occupancy grid. The upsampler runs the same in both renders and
+//!   the grid is skipping's own cost, so `dense / (upsampler + grid)` bounds skipping's
+//!   speed-up however empty the field.
+//!
 //! `TOKENIZER_WEIGHTS=FILE` loads trained weights; without it the model is untrained, which
 //! leaves latency unchanged but makes the skipping figures unrepresentative (α ≈ 0.5 everywhere).
+//! `TOKENIZER_RESULTS=NAME` writes `bench/results/NAME.{md,json}` instead of `tokenizer.*`, for
+//! weights other than the shipped ones.
 //!
 //!   cargo run --release -p bevworld-bench --bin tokenizer
 //!   TOKENIZER_WEIGHTS=nodes/tokenizer/weights/tokenizer-tiny.bpk cargo run --release -p bevworld-bench --bin tokenizer
@@ -22,6 +29,10 @@ use bevworld_tokenizer::render::{OccupancyGrid, RenderedRays, SkipOptions, Voxel
 use bevworld_tokenizer::{TokenizerConfig, load_weights};
 use burn::module::Module;
 use burn::prelude::*;
+
+/// Runs per render timing: their median. Three left the dense/skipping ratio moving by a
+/// fifth between runs on a 2-core VM.
+const RENDER_RUNS: usize = 9;
 
 fn main() {
     bevworld_device::keep_freed_memory();
@@ -67,7 +78,7 @@ fn main() {
     let total_rays = camera_rays + lidar_rays;
     let scene = VoxelScene::new(&model, &config, voxels);
     let rgb_of = |camera: &RenderedRays| -> Vec<f32> { scene.camera_planes(camera, &rays) };
-    let dense = time_runs(3, || {
+    let dense = time_runs(RENDER_RUNS, || {
         let camera = scene.render_dense(&rays.camera);
         let lidar = scene.render_dense(&rays.lidar);
         (rgb_of(&camera), camera, lidar)
@@ -90,7 +101,7 @@ fn main() {
                 segment,
                 ..defaults
             };
-            let run = time_runs(3, || {
+            let run = time_runs(RENDER_RUNS, || {
                 let grid = OccupancyGrid::build(&scene, &options);
                 let camera = scene.render_skipping(&grid, &rays.camera, &options);
                 let lidar = scene.render_skipping(&grid, &rays.lidar, &options);
@@ -99,6 +110,59 @@ fn main() {
             (options, run)
         })
         .collect();
+    // The render's parts, timed alone.
+    let grid = OccupancyGrid::build(&scene, &defaults);
+    let part = |f: &dyn Fn() -> RenderedRays| {
+        time_runs(RENDER_RUNS, || std::hint::black_box(f().depth.len())).0
+    };
+    let parts = serde_json::json!({
+        "dense_camera_march_ms_p50": part(&|| scene.render_dense(&rays.camera)),
+        "dense_lidar_march_ms_p50": part(&|| scene.render_dense(&rays.lidar)),
+        "skipping_camera_march_ms_p50": part(&|| scene.render_skipping(&grid, &rays.camera, &defaults)),
+        "skipping_lidar_march_ms_p50": part(&|| scene.render_skipping(&grid, &rays.lidar, &defaults)),
+        "rgb_upsampler_ms_p50": time_runs(RENDER_RUNS, || rgb_of(&dense.2.1).len()).0,
+        "occupancy_grid_ms_p50": time_runs(RENDER_RUNS, || {
+            OccupancyGrid::build(&scene, &defaults).occupied_fraction
+        })
+        .0,
+    });
+    let ms = |key: &str| parts[key].as_f64().unwrap_or(f64::NAN);
+    // Where the occupancy grid keeps the LiDAR rays' samples, against each ray's return: air
+    // the ray crosses before it (what a sparse field should leave out), the metre either side
+    // of it, and what lies behind it (which early stop leaves out once the surface is opaque).
+    let lidar_kept = {
+        let (depths, placement) = (config.render.sample_depths(), config.voxel_placement());
+        let (mut kept, mut before) = ([0u64; 3], 0u64);
+        let lidar = &rays.lidar;
+        for ((o, d), &range) in lidar
+            .origins
+            .iter()
+            .zip(&lidar.directions)
+            .zip(&rays.lidar_ranges)
+        {
+            for &t in &depths {
+                before += u64::from(t < range - 1.0);
+                let p = placement.to_voxel(std::array::from_fn(|axis| o[axis] + t * d[axis]));
+                if grid.keeps(p) {
+                    let slot = match t {
+                        t if t < range - 1.0 => 0,
+                        t if t <= range + 1.0 => 1,
+                        _ => 2,
+                    };
+                    kept[slot] += 1;
+                }
+            }
+        }
+        let total = (lidar.len() * depths.len()).max(1) as f64;
+        serde_json::json!({
+            "before_return": kept[0] as f64 / total,
+            "within_1m_of_return": kept[1] as f64 / total,
+            "behind_return": kept[2] as f64 / total,
+            "all_before_return": before as f64 / total,
+        })
+    };
+    let share = |key: &str| 100.0 * lidar_kept[key].as_f64().unwrap_or(f64::NAN);
+    let (upsampler_ms, grid_ms) = (ms("rgb_upsampler_ms_p50"), ms("occupancy_grid_ms_p50"));
     let matmul = bevworld_device::matmul_gflops(&device, 512, 5).unwrap_or(f64::NAN);
 
     let (dense_rgb, dense_camera, dense_lidar) = &dense.2;
@@ -215,26 +279,47 @@ fn main() {
         "Backend: {} ({device:?}). Input: the real nuScenes keyframe. Parameters: {parameters} \
          ({:.2} M). {weights_note}. Occupied voxels (α > {}): {:.1}%. Matmul rate in the same run: \
          {matmul:.1} GFLOP/s (512 x 512). FLOPs are analytic (`nodes/tokenizer/src/flops.rs`), \
-         2 per multiply-add.\n",
+         2 per multiply-add.\n\nThe render's parts (ms p50): marches dense {:.1} (camera) + {:.1} \
+         (LiDAR), skipping {:.1} + {:.1}; the RGB upsampler {upsampler_ms:.1}, run by both; the \
+         occupancy grid {grid_ms:.1}, skipping's own. However empty the field, skipping cannot \
+         beat dense by more than {:.2}x (dense / (upsampler + grid)). Of the LiDAR rays' samples \
+         the occupancy grid keeps {:.1}% before the return (of {:.1}% that lie there), {:.1}% \
+         within a metre of it and {:.1}% behind it (before early stop).\n",
         kind.name(),
         parameters as f64 / 1e6,
         options.alpha_threshold,
         100.0 * occupied,
+        ms("dense_camera_march_ms_p50"),
+        ms("dense_lidar_march_ms_p50"),
+        ms("skipping_camera_march_ms_p50"),
+        ms("skipping_lidar_march_ms_p50"),
+        dense.0 / (upsampler_ms + grid_ms),
+        share("before_return"),
+        share("all_before_return"),
+        share("within_1m_of_return"),
+        share("behind_return"),
     );
     print!("{notes}");
     let command = "cargo run --release -p bevworld-bench --bin tokenizer";
+    let results = std::env::var("TOKENIZER_RESULTS").unwrap_or_else(|_| "tokenizer".into());
     let command = match &weights {
         Some(path) => format!("TOKENIZER_WEIGHTS={} {command}", path.display()),
         None => command.to_string(),
     };
+    let command = if results == "tokenizer" {
+        command
+    } else {
+        format!("TOKENIZER_RESULTS={results} {command}")
+    };
     write_results(
-        "tokenizer",
+        &results,
         "Tokenizer latency, FLOPs and rendering with and without skipping, tiny config",
         &command,
         &table,
         &notes,
         &serde_json::json!({
             "backend": kind.name(),
+            "machine": bevworld_bench::machine(),
             "weights": weights.as_ref().map(|p| p.display().to_string()),
             "parameters": parameters,
             "pillars": pillars.len(),
@@ -246,6 +331,8 @@ fn main() {
             "render_dense_gflop": dense_flop / 1e9,
             "render_skipping": skip_json,
             "occupied_fraction": occupied,
+            "render_parts": parts,
+            "lidar_samples_kept_by_grid": lidar_kept,
             "rays": total_rays,
             "samples_per_ray": config.render.samples,
             "matmul_gflops": matmul,
