@@ -941,9 +941,13 @@ fn common_notes(results: &Path) -> String {
          four times slower under AVX-512. Before the packed attention the pass tied eager on \
          one thread and fell behind on two, where the copies took a larger share; a section \
          marked as measured before it still shows that.\n\
-         - **Skipping** is far from 3× because the shipped field has α > 0.001 in {:.0}% of its \
-         voxels: there is little empty space to skip. What is skipped is mostly early stop and \
-         rays leaving the grid.\n\
+         - **Skipping** is far from 3×, and emptier air does not bring it nearer. The shipped \
+         field has α > 0.001 in {:.0}% of its voxels; a decoder fine-tuned with a sparsity prior \
+         empties much of that air at the same validation quality, and skipping then evaluates \
+         about the same share of samples ([sparse-field.md](sparse-field.md)): the samples it keeps lie along \
+         each LiDAR ray just before its return, near the ground, where both fields are above the \
+         threshold, and behind it, up to early stop. The RGB upsampler, which both renders run, \
+         and the occupancy grid, which skipping adds, bound it below 3× on their own.\n\
          - **How firm.** On a 2-core VM PyTorch's 2-thread times move more between runs than \
          ours (on the EPYC its encoder took 24–33 ms over four runs of one day), so a 2-thread \
          margin under ~25% is within the noise.\n\
