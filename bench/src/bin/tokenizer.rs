@@ -130,9 +130,28 @@ fn main() {
     // Where the occupancy grid keeps the LiDAR rays' samples, against each ray's return: air
     // the ray crosses before it (what a sparse field should leave out), the metre either side
     // of it, and what lies behind it (which early stop leaves out once the surface is opaque).
+    // Before the return, also the samples whose nearest voxel is itself above the threshold,
+    // without the grid's dilation and pooling: the field's own share of what is kept.
+    let field_occupied: Option<Vec<bool>> = {
+        let threshold = (defaults.alpha_threshold / (1.0 - defaults.alpha_threshold)).ln();
+        let channels = scene.voxels.shape.channels;
+        model
+            .alpha_head_on_host()
+            .zip(scene.voxels.host_table())
+            .map(|(head, table)| {
+                let logits = head.table_logits(table, channels);
+                logits.into_iter().map(|s| s > threshold).collect()
+            })
+    };
+    let shape = scene.voxels.shape;
+    let ([x_terms, y_terms, z_terms], [nz, ny, nx]) = (shape.row_terms(), shape.voxels());
+    let nearest = |v: f32, n: usize| {
+        let r = (v + 0.5).floor();
+        (r >= 0.0 && r < n as f32).then_some(r as usize)
+    };
     let lidar_kept = {
         let (depths, placement) = (config.render.sample_depths(), config.voxel_placement());
-        let (mut kept, mut before) = ([0u64; 3], 0u64);
+        let (mut kept, mut before, mut before_in_field) = ([0u64; 3], 0u64, 0u64);
         let lidar = &rays.lidar;
         for ((o, d), &range) in lidar
             .origins
@@ -143,6 +162,16 @@ fn main() {
             for &t in &depths {
                 before += u64::from(t < range - 1.0);
                 let p = placement.to_voxel(std::array::from_fn(|axis| o[axis] + t * d[axis]));
+                let voxel = nearest(p[0], nx)
+                    .zip(nearest(p[1], ny))
+                    .zip(nearest(p[2], nz))
+                    .map(|((ix, iy), iz)| (x_terms[ix] + y_terms[iy] + z_terms[iz]) as usize);
+                if t < range - 1.0
+                    && let (Some(row), Some(occupied)) = (voxel, &field_occupied)
+                    && occupied[row]
+                {
+                    before_in_field += 1;
+                }
                 if grid.keeps(p) {
                     let slot = match t {
                         t if t < range - 1.0 => 0,
@@ -159,6 +188,9 @@ fn main() {
             "within_1m_of_return": kept[1] as f64 / total,
             "behind_return": kept[2] as f64 / total,
             "all_before_return": before as f64 / total,
+            "before_return_in_an_occupied_voxel": field_occupied
+                .as_ref()
+                .map(|_| before_in_field as f64 / total),
         })
     };
     let share = |key: &str| 100.0 * lidar_kept[key].as_f64().unwrap_or(f64::NAN);
@@ -283,8 +315,9 @@ fn main() {
          (LiDAR), skipping {:.1} + {:.1}; the RGB upsampler {upsampler_ms:.1}, run by both; the \
          occupancy grid {grid_ms:.1}, skipping's own. However empty the field, skipping cannot \
          beat dense by more than {:.2}x (dense / (upsampler + grid)). Of the LiDAR rays' samples \
-         the occupancy grid keeps {:.1}% before the return (of {:.1}% that lie there), {:.1}% \
-         within a metre of it and {:.1}% behind it (before early stop).\n",
+         the occupancy grid keeps {:.1}% before the return (of {:.1}% that lie there; {:.1}% lie \
+         in a voxel itself above the threshold), {:.1}% within a metre of it and {:.1}% behind \
+         it (before early stop).\n",
         kind.name(),
         parameters as f64 / 1e6,
         options.alpha_threshold,
@@ -296,6 +329,7 @@ fn main() {
         dense.0 / (upsampler_ms + grid_ms),
         share("before_return"),
         share("all_before_return"),
+        share("before_return_in_an_occupied_voxel"),
         share("within_1m_of_return"),
         share("behind_return"),
     );

@@ -945,8 +945,9 @@ fn common_notes(results: &Path) -> String {
          field has α > 0.001 in {:.0}% of its voxels; a decoder fine-tuned with a sparsity prior \
          empties much of that air at the same validation quality, and skipping then evaluates \
          about the same share of samples ([sparse-field.md](sparse-field.md)): the samples it keeps lie along \
-         each LiDAR ray just before its return, near the ground, where both fields are above the \
-         threshold, and behind it, up to early stop. The RGB upsampler, which both renders run, \
+         each LiDAR ray before its return, in air the field already leaves nearly empty but the \
+         grid's margin (a voxel of dilation, 2³ cells) keeps around the ground the rays graze, \
+         and behind it, up to early stop. The RGB upsampler, which both renders run, \
          and the occupancy grid, which skipping adds, bound it below 3× on their own.\n\
          - **How firm.** On a 2-core VM PyTorch's 2-thread times move more between runs than \
          ours (on the EPYC its encoder took 24–33 ms over four runs of one day), so a 2-thread \
