@@ -94,13 +94,20 @@ fn main() {
     } else {
         vec![defaults.segment, 24, 48]
     };
+    // Then a tighter grid: one-voxel cells, undilated (`sparse-field.md` measures its error).
+    let tight = SkipOptions {
+        cell: 1,
+        dilate: false,
+        ..defaults
+    };
     let skip_runs: Vec<_> = segments
         .into_iter()
-        .map(|segment| {
-            let options = SkipOptions {
-                segment,
-                ..defaults
-            };
+        .map(|segment| SkipOptions {
+            segment,
+            ..defaults
+        })
+        .chain([tight])
+        .map(|options| {
             let run = time_runs(RENDER_RUNS, || {
                 let grid = OccupancyGrid::build(&scene, &options);
                 let camera = scene.render_skipping(&grid, &rays.camera, &options);
@@ -261,6 +268,8 @@ fn main() {
         let fraction = evaluated as f64 / dense_samples as f64;
         skip_json.push(serde_json::json!({
             "segment": options.segment,
+            "cell": options.cell,
+            "dilate": options.dilate,
             "ms_p50": skipping.0,
             "gflop": flops.render(evaluated, rays.cameras) / 1e9,
             "sample_fraction": fraction,
@@ -269,9 +278,10 @@ fn main() {
         }));
         rows.push(row(
             format!(
-                "render, skipping (α ≤ {}, {}³ cells, stop at T < {}, {})",
+                "render, skipping (α ≤ {}, {}³ cells{}, stop at T < {}, {})",
                 options.alpha_threshold,
                 options.cell,
+                if options.dilate { "" } else { ", undilated" },
                 options.stop_transmittance,
                 if fused {
                     "16 samples at a time, fused CPU renderer".to_string()

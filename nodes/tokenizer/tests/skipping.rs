@@ -290,6 +290,7 @@ fn skip_options_name_every_bad_field() {
         cell: 0,
         stop_transmittance: 1.5,
         segment: 0,
+        dilate: true,
     };
     let problems = bad.problems().join("\n");
     for field in ["alpha_threshold", "cell", "stop_transmittance", "segment"] {

@@ -13,6 +13,12 @@ pub struct SkipOptions {
     /// Coarse occupancy cells are `cell³` voxels.
     #[serde(default = "default_cell")]
     pub cell: usize,
+    /// Widen the occupied voxels by one before pooling them into cells: a trilinear sample
+    /// reads the 8 voxels around it, so a sample beside an occupied voxel may be dense.
+    /// `false` keeps a sample only when its nearest voxel's cell is occupied: fewer samples
+    /// near surfaces, at an error `bench/results/sparse-field.md` measures.
+    #[serde(default = "default_dilate")]
+    pub dilate: bool,
     /// A ray stops once its transmittance is below this.
     #[serde(default = "default_stop")]
     pub stop_transmittance: f32,
@@ -27,6 +33,9 @@ fn default_threshold() -> f32 {
 fn default_cell() -> usize {
     2
 }
+fn default_dilate() -> bool {
+    true
+}
 fn default_stop() -> f32 {
     1e-4
 }
@@ -39,6 +48,7 @@ impl Default for SkipOptions {
         Self {
             alpha_threshold: default_threshold(),
             cell: default_cell(),
+            dilate: default_dilate(),
             stop_transmittance: default_stop(),
             segment: default_segment(),
         }
@@ -86,20 +96,25 @@ pub struct OccupancyGrid {
 }
 
 impl OccupancyGrid {
-    /// The grid of a fine occupancy `[Z, Y, X]` (row-major, before dilation), in coarse cells
-    /// of `cell³` voxels; `outside_occupied` says whether a sample outside the grid (zero
-    /// feature) is dense enough to keep.
+    /// The grid of a fine occupancy `[Z, Y, X]` (row-major, before dilation), dilated by a
+    /// voxel when `dilate`, in coarse cells of `cell³` voxels; `outside_occupied` says whether
+    /// a sample outside the grid (zero feature) is dense enough to keep.
     pub fn from_fine(
         fine: &[bool],
         [z, y, x]: [usize; 3],
         cell: usize,
+        dilate: bool,
         outside_occupied: bool,
     ) -> Self {
         let count = fine.iter().filter(|&&occupied| occupied).count();
         // Dilate by one voxel (a trilinear sample reads the 8 voxels around it), one axis at a
         // time, then pool into coarse cells: O(voxels), where marking the 27 neighbours' cells
         // of every occupied voxel was 27 writes per voxel.
-        let dilated = dilate_by_one(fine, [z, y, x]);
+        let dilated = if dilate {
+            dilate_by_one(fine, [z, y, x])
+        } else {
+            fine.to_vec()
+        };
         let cell = cell.max(1);
         let coarse = [z.div_ceil(cell), y.div_ceil(cell), x.div_ceil(cell)];
         let mut occupied = vec![false; coarse[0] * coarse[1] * coarse[2]];
@@ -191,7 +206,7 @@ mod tests {
         // inside the first 2³ cell, so exactly that cell's 8 voxels are kept.
         let mut fine = vec![false; 6 * 6 * 6];
         fine[0] = true;
-        let grid = OccupancyGrid::from_fine(&fine, [6, 6, 6], 2, false);
+        let grid = OccupancyGrid::from_fine(&fine, [6, 6, 6], 2, true, false);
         assert_eq!(grid.kept.iter().filter(|&&k| k).count(), 8);
         assert!((grid.occupied_fraction - 1.0 / 216.0).abs() < 1e-12);
         assert!(grid.keeps([0.0, 0.0, 0.0]) && grid.keeps([1.4, 1.4, 1.4]));
@@ -199,12 +214,20 @@ mod tests {
         assert!(!grid.keeps([1.5, 0.0, 0.0]) && !grid.keeps([3.0, 3.0, 3.0]));
         // Outside the grid: as the zero feature says.
         assert!(!grid.keeps([-1.0, 0.0, 0.0]));
-        assert!(OccupancyGrid::from_fine(&fine, [6, 6, 6], 2, true).keeps([-1.0, 0.0, 0.0]));
+        assert!(OccupancyGrid::from_fine(&fine, [6, 6, 6], 2, true, true).keeps([-1.0, 0.0, 0.0]));
         // A voxel at a cell's edge spreads into the neighbouring cell: voxel (1, 0, 0) dilates
         // to x = 2, so the cells at x 0–1 and 2–3 are kept (16 voxels).
         let mut edge = vec![false; 6 * 6 * 6];
         edge[1] = true;
-        let grid = OccupancyGrid::from_fine(&edge, [6, 6, 6], 2, false);
+        let grid = OccupancyGrid::from_fine(&edge, [6, 6, 6], 2, true, false);
         assert_eq!(grid.kept.iter().filter(|&&k| k).count(), 16);
+        // Undilated, the edge voxel stays in its own cell (8 voxels); with one-voxel cells
+        // it is the only one kept, and a sample half a voxel beyond it is not.
+        let grid = OccupancyGrid::from_fine(&edge, [6, 6, 6], 2, false, false);
+        assert_eq!(grid.kept.iter().filter(|&&k| k).count(), 8);
+        let grid = OccupancyGrid::from_fine(&edge, [6, 6, 6], 1, false, false);
+        assert_eq!(grid.kept.iter().filter(|&&k| k).count(), 1);
+        assert!(grid.keeps([1.4, 0.0, 0.0]) && !grid.keeps([1.5, 0.0, 0.0]));
+        assert!(!grid.keeps([0.0, 0.0, 0.0]));
     }
 }

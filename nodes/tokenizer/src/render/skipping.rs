@@ -91,7 +91,13 @@ impl OccupancyGrid {
             .first()
             .is_some_and(|&s| s > threshold_logit);
 
-        Self::from_fine(&fine, [z, y, x], options.cell, outside_occupied)
+        Self::from_fine(
+            &fine,
+            [z, y, x],
+            options.cell,
+            options.dilate,
+            outside_occupied,
+        )
     }
 }
 
