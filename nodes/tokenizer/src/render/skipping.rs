@@ -3,7 +3,8 @@
 //! - **Occupancy.** α is evaluated once per voxel centre (one pass of the alpha head over the
 //!   grid, shared by every ray of every view). A voxel is occupied when α > `alpha_threshold`.
 //!   The occupied set is dilated by one voxel, because a trilinear sample reads the 8 voxels
-//!   around it, and pooled into coarse cells of `cell³` voxels. A sample is kept when the
+//!   around it (unless `dilate: false`, which skips more and is no longer exact at surfaces'
+//!   edges), and pooled into coarse cells of `cell³` voxels. A sample is kept when the
 //!   coarse cell of its nearest voxel is occupied. Samples outside the grid read zero features,
 //!   so they are kept only if α of the zero feature exceeds the threshold.
 //! - **Early stop.** Kept samples go through the model in segments of `segment` per ray; after
