@@ -1198,7 +1198,7 @@ fn a_decoder_fine_tune_keeps_the_encoder_and_every_latent_bit_for_bit() {
 
     config.init = Some(weights.clone());
     config.trains = bevworld_tokenizer_train::TrainedParts::Decoder;
-    let mut tuned = trainer(config, model, frames().clone())
+    let mut tuned = trainer(config.clone(), model.clone(), frames().clone())
         .start_from(&weights)
         .expect("the weights load");
     let latent = training_latent(&tuned, &frames()[0]);
@@ -1219,11 +1219,6 @@ fn a_decoder_fine_tune_keeps_the_encoder_and_every_latent_bit_for_bit() {
     // A checkpoint resumed keeps it fixed too.
     let run = dir.path().join("run");
     tuned.save_checkpoint(&run).expect("checkpoint");
-    let (mut config, model) = configs();
-    config.rays.lidar_rays = 256;
-    config.rays.cameras_per_step = 2;
-    config.init = Some(weights);
-    config.trains = bevworld_tokenizer_train::TrainedParts::Decoder;
     let mut resumed = trainer(config, model, frames().clone())
         .resume(&run)
         .expect("resume");
