@@ -52,6 +52,7 @@ fn one_forecast(config: &WorldModelConfig) {
         actions: random_normal(2, [1, p + n, 5], 0.0, 0.5, &device),
         base: None,
         warped: random_normal(3, [1, n, config.latent_channels, h, w], 0.0, 1.0, &device),
+        fine_tokens: Default::default(),
     };
     let schedule = NoiseSchedule::new(&config.diffusion);
     let sampler = DdimConfig::deterministic(1, 0);

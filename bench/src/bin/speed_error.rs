@@ -129,6 +129,7 @@ fn cache_timings(root: &Path) -> Vec<(usize, f64, f64)> {
         actions: random_normal(2, [1, p + n, 5], 0.0, 0.5, &device),
         base: Some(warped.clone()),
         warped,
+        fine_tokens: Default::default(),
     };
     let schedule = NoiseSchedule::new(&config.diffusion);
     STEPS

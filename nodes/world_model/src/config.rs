@@ -9,6 +9,7 @@ use bevworld_types::problem::{require_count, require_positive};
 use serde::{Deserialize, Serialize};
 
 use crate::ego_warp::{EgoWarpBase, LatentGrid};
+use crate::fine_tokens::FineTokensConfig;
 
 /// What the network predicts for the noisy future frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -103,6 +104,10 @@ pub struct WorldModelConfig {
     pub x_range: [f64; 2],
     pub y_range: [f64; 2],
     pub diffusion: DiffusionConfig,
+    /// One token per latent cell where the context moves, corrected by a fine stage
+    /// (`fine_tokens.rs`, `fine_stage.rs`). Absent: coarse tokens only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fine_tokens: Option<FineTokensConfig>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -246,6 +251,9 @@ impl WorldModelConfig {
                     format!("{range:?} (accepted: [low, high] with low < high)"),
                 ));
             }
+        }
+        if let Some(fine) = &self.fine_tokens {
+            problems.extend(fine.problems());
         }
         let diffusion = &self.diffusion;
         if diffusion.schedule == ScheduleKind::Linear

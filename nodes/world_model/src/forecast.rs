@@ -6,6 +6,7 @@ use burn::prelude::*;
 
 use crate::config::WorldModelConfig;
 use crate::ddim::{DdimConfig, DdimError, clean_and_noise, step, timesteps};
+use crate::fine_tokens::FineTokenSelection;
 use crate::model::WorldModel;
 use crate::schedule::NoiseSchedule;
 
@@ -22,6 +23,9 @@ pub struct ForecastInputs {
     /// The current latent warped into each future ego frame, all of it: what a model with
     /// `ego_warp_input` embeds.
     pub warped: Tensor<5>, // [B, N, C', H, W]
+    /// The coarse tokens a model with `fine_tokens` opens into fine ones, per batch item
+    /// (`fine_tokens::select_for_context`); empty for a model without them.
+    pub fine_tokens: FineTokenSelection,
 }
 
 /// Draws `[B, N, C', H, W]` standard normal noise from `seed`, on the host.
@@ -94,14 +98,21 @@ pub fn forecast_with(
         )
     });
     let future_actions = inputs.actions.clone().narrow(1, context, future);
+    // The default, an empty selection, is no fine tokens for any item.
+    let selection = if inputs.fine_tokens.tokens.is_empty() {
+        FineTokenSelection::none(batch)
+    } else {
+        inputs.fine_tokens.clone()
+    };
     for (index, &(level, previous)) in plan.iter().enumerate() {
         let output = match &cache {
-            Some(cache) => model.forward_future(
+            Some(cache) => model.forward_future_selected(
                 cache,
                 x.clone(),
                 future_actions.clone(),
                 &vec![level as f32; batch * future],
                 Some(inputs.warped.clone()),
+                &selection,
             ),
             None => {
                 let levels: Vec<f32> = (0..batch)
@@ -111,12 +122,13 @@ pub fn forecast_with(
                     })
                     .collect();
                 let frames = Tensor::cat(vec![inputs.context.clone(), x.clone()], 1);
-                model.forward(
+                model.forward_selected(
                     frames,
                     inputs.actions.clone(),
                     &levels,
                     future,
                     Some(inputs.warped.clone()),
+                    &selection,
                 )
             }
         };

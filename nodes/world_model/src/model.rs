@@ -13,6 +13,9 @@
 //!   world will be instead of working out a sub-token resampling from the actions.
 //! - A final adaLN-modulated linear layer, zero at initialisation, maps the future frames'
 //!   tokens back to patches: the prediction (ε, v or x₀, `diffusion.target`) for them only.
+//! - With `fine_tokens`, the coarse tokens where the context moves (`fine_tokens.rs`) are
+//!   opened into one token per latent cell, and a fine stage (`fine_stage.rs`) corrects their
+//!   cells' prediction; the rest of the scene costs what it did.
 
 use bevworld_blocks::linear_on_host::linear;
 use bevworld_blocks::{
@@ -25,6 +28,8 @@ use burn::prelude::*;
 use crate::block::{NORM_EPSILON, SpatialTemporalBlock, SpatialTemporalBlockConfig};
 use crate::condition::{Condition, ConditionConfig};
 use crate::config::WorldModelConfig;
+use crate::fine_stage::{FineInputs, FineStage, FineStageConfig};
+use crate::fine_tokens::FineTokenSelection;
 use crate::patch::{patchify, unpatchify};
 
 #[derive(Module, Debug)]
@@ -36,6 +41,8 @@ pub struct WorldModel {
     blocks: Vec<SpatialTemporalBlock>,
     final_modulation: AdaLnModulation,
     head: Linear,
+    /// One token per latent cell where the context moves (`fine_tokens`).
+    fine: Option<FineStage>,
     #[module(skip)]
     patch: usize,
     #[module(skip)]
@@ -50,6 +57,19 @@ pub struct WorldModel {
 }
 
 impl WorldModelConfig {
+    /// The fine stage's sizes, for a model with `fine_tokens`.
+    pub fn fine_stage(&self) -> Option<FineStageConfig> {
+        self.fine_tokens.as_ref().map(|fine| {
+            FineStageConfig::of(
+                fine,
+                self.latent_channels,
+                self.patch,
+                self.width,
+                2 * self.condition_half,
+            )
+        })
+    }
+
     pub fn init(&self, device: &Device) -> WorldModel {
         let condition = ConditionConfig::new(self.condition_half).init(device);
         let condition_width = condition.width();
@@ -75,6 +95,7 @@ impl WorldModelConfig {
             head: LinearConfig::new(self.width, self.patch_values())
                 .with_initializer(Initializer::Zeros)
                 .init(device),
+            fine: self.fine_stage().map(|fine| fine.init(device)),
             patch: self.patch,
             channels: self.latent_channels,
             size: self.latent_size,
@@ -92,6 +113,10 @@ pub struct ContextCache {
     /// Per block: keys and values, `[B·L, H, P+1, d]` each.
     keys_values: Vec<[Tensor<4>; 2]>,
     frames: usize,
+    /// The condition frames and their condition, `[B, P+1, C', H, W]` and `[B, P+1, c]`: what
+    /// the fine stage, which runs every frame at every step, reads of them.
+    latents: Tensor<5>,
+    condition: Tensor<3>,
 }
 
 impl ContextCache {
@@ -164,7 +189,7 @@ impl WorldModel {
         let [batch, frames, _, _, _] = context.dims();
         let causal = causal_mask(frames, &context.device());
         let condition = self.condition.forward(actions, &vec![0.0; batch * frames]);
-        let mut x = self.embed(context, 0, None);
+        let mut x = self.embed(context.clone(), 0, None);
         let mut keys_values = Vec::with_capacity(self.blocks.len());
         for block in &self.blocks {
             let (next, kv) = block.forward_keeping(x, condition.clone(), causal.clone());
@@ -174,6 +199,8 @@ impl WorldModel {
         ContextCache {
             keys_values,
             frames,
+            latents: context,
+            condition,
         }
     }
 
@@ -189,16 +216,49 @@ impl WorldModel {
         levels: &[f32],
         warped: Option<Tensor<5>>,
     ) -> Tensor<5> {
+        let batch = future.dims()[0];
+        self.forward_future_selected(
+            cache,
+            future,
+            actions,
+            levels,
+            warped,
+            &FineTokenSelection::none(batch),
+        )
+    }
+
+    /// `forward_future` with fine tokens where `selection` puts them (a model without a fine
+    /// stage ignores it).
+    pub fn forward_future_selected(
+        &self,
+        cache: &ContextCache,
+        future: Tensor<5>,
+        actions: Tensor<3>,
+        levels: &[f32],
+        warped: Option<Tensor<5>>,
+        selection: &FineTokenSelection,
+    ) -> Tensor<5> {
         let [_, frames, _, _, _] = future.dims();
         let all = cache.frames + frames;
+        let device = future.device();
         // The rows of the future frames in the causal mask of the whole sequence.
-        let mask = causal_mask(all, &future.device()).narrow(0, cache.frames, frames); // [N, P+1+N]
+        let mask = causal_mask(all, &device).narrow(0, cache.frames, frames); // [N, P+1+N]
         let condition = self.condition.forward(actions, levels);
-        let mut x = self.embed(future, cache.frames, warped);
+        let mut x = self.embed(future.clone(), cache.frames, warped.clone());
         for (block, prefix) in self.blocks.iter().zip(&cache.keys_values) {
             x = block.forward_after(x, condition.clone(), prefix, mask.clone());
         }
-        self.head(x, condition)
+        let correction = self.fine.as_ref().map(|fine| {
+            fine.forward(FineInputs {
+                latents: Tensor::cat(vec![cache.latents.clone(), future], 1),
+                warped,
+                coarse: x.clone(),
+                condition: Tensor::cat(vec![cache.condition.clone(), condition.clone()], 1),
+                causal: causal_mask(all, &device),
+                selection,
+            })
+        });
+        self.head(x, condition, correction)
     }
 
     /// The prediction for the last `future` frames; `warped` is their ego-warped current
@@ -213,18 +273,49 @@ impl WorldModel {
         future: usize,
         warped: Option<Tensor<5>>,
     ) -> Tensor<5> {
-        let [_, frames, _, _, _] = latents.dims();
-        let (x, condition) = self.encode(latents, actions, levels, warped);
-        let first = frames - future;
-        self.head(
-            x.narrow(1, first, future),
-            condition.narrow(1, first, future),
+        let batch = latents.dims()[0];
+        self.forward_selected(
+            latents,
+            actions,
+            levels,
+            future,
+            warped,
+            &FineTokenSelection::none(batch),
         )
     }
 
-    /// The final adaLN-modulated projection back to latent patches.
-    // x: [B, N, L, D], condition: [B, N, c] -> [B, N, C', H, W]
-    fn head(&self, x: Tensor<4>, condition: Tensor<3>) -> Tensor<5> {
+    /// `forward` with fine tokens where `selection` puts them (a model without a fine stage
+    /// ignores it).
+    pub fn forward_selected(
+        &self,
+        latents: Tensor<5>,
+        actions: Tensor<3>,
+        levels: &[f32],
+        future: usize,
+        warped: Option<Tensor<5>>,
+        selection: &FineTokenSelection,
+    ) -> Tensor<5> {
+        let [_, frames, _, _, _] = latents.dims();
+        let (x, condition) = self.encode(latents.clone(), actions, levels, warped.clone());
+        let first = frames - future;
+        let x = x.narrow(1, first, future);
+        let correction = self.fine.as_ref().map(|fine| {
+            fine.forward(FineInputs {
+                latents,
+                warped,
+                coarse: x.clone(),
+                condition: condition.clone(),
+                causal: causal_mask(frames, &x.device()),
+                selection,
+            })
+        });
+        self.head(x, condition.narrow(1, first, future), correction)
+    }
+
+    /// The final adaLN-modulated projection back to latent patches, plus the fine stage's
+    /// correction of the tokens it opened.
+    // x: [B, N, L, D], condition: [B, N, c], correction: [B, N, L, C'·p·p] -> [B, N, C', H, W]
+    fn head(&self, x: Tensor<4>, condition: Tensor<3>, correction: Option<Tensor<4>>) -> Tensor<5> {
         let m: Vec<Tensor<4>> = self
             .final_modulation
             .forward(condition)
@@ -232,7 +323,25 @@ impl WorldModel {
             .map(|v| v.unsqueeze_dim(2))
             .collect();
         let h = modulated_layer_norm(x, m[0].clone(), m[1].clone(), NORM_EPSILON);
-        unpatchify(linear(&self.head, h), self.patch, self.channels, self.size)
+        let patches = linear(&self.head, h);
+        let patches = match correction {
+            Some(correction) => patches + correction,
+            None => patches,
+        };
+        unpatchify(patches, self.patch, self.channels, self.size)
+    }
+
+    /// This model with `stage` as its fine stage: a model with fine tokens started from the
+    /// trained weights of the coarse model it extends (its head is zero, so it starts as that
+    /// model).
+    pub fn with_fine_stage(mut self, stage: FineStage) -> Self {
+        self.fine = Some(stage);
+        self
+    }
+
+    /// Its fine stage, if it has one.
+    pub fn fine_stage(&self) -> Option<&FineStage> {
+        self.fine.as_ref()
     }
 
     /// The blocks, for tests of their initial state.

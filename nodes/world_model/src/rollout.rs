@@ -12,6 +12,7 @@ use crate::actions::{ACTION_FEATURES, ActionStats};
 use crate::config::{ConfigError, WorldModelConfig};
 use crate::ddim::{DdimConfig, DdimError};
 use crate::ego_warp::{LatentGrid, PlanarMotion, warp_latent};
+use crate::fine_tokens::{FineTokenSelection, select_for_context};
 use crate::forecast::{ForecastInputs, forecast};
 use crate::model::WorldModel;
 use crate::schedule::NoiseSchedule;
@@ -152,7 +153,27 @@ impl Rollout<'_> {
         };
         let ego_warped = destandardised(&warped);
         let base_destandardised = destandardised(&base);
+        let fine_tokens = match &self.config.fine_tokens {
+            Some(fine) => {
+                // The ego motion into each condition frame after the first.
+                let previous_from_frame: Vec<PlanarMotion> = context_actions[1..]
+                    .iter()
+                    .map(PlanarMotion::of_action)
+                    .collect();
+                FineTokenSelection {
+                    tokens: vec![select_for_context(
+                        &standardised,
+                        &grid,
+                        &previous_from_frame,
+                        self.config.patch,
+                        &fine.select,
+                    )],
+                }
+            }
+            None => FineTokenSelection::default(),
+        };
         let inputs = ForecastInputs {
+            fine_tokens,
             context: Tensor::from_data(TensorData::new(standardised, shape(p)), &self.device),
             actions: Tensor::from_data(
                 TensorData::new(actions, [1, p + n, ACTION_FEATURES]),

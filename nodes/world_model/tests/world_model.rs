@@ -188,6 +188,7 @@ fn forecast_inputs(c: &WorldModelConfig, seed: u64) -> ForecastInputs {
         actions,
         base: Some(base.clone()),
         warped: base,
+        fine_tokens: Default::default(),
     }
 }
 
@@ -540,4 +541,151 @@ fn largest_gap(a: &[f32], b: &[f32]) -> f32 {
         .zip(b)
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f32::max)
+}
+
+/// `small` with a fine stage: patch 4 on 16 × 16 cells, a 4 × 4 token grid.
+fn small_fine() -> WorldModelConfig {
+    let mut c = small();
+    c.name = "world-model-fine-small".into();
+    c.fine_tokens = Some(bevworld_world_model::FineTokensConfig {
+        width: 16,
+        depth: 1,
+        heads: 2,
+        select: bevworld_world_model::FineTokenRule {
+            threshold: 1.0,
+            dilate: 0,
+        },
+    });
+    c
+}
+
+fn selection(tokens: Vec<Vec<usize>>) -> bevworld_world_model::FineTokenSelection {
+    bevworld_world_model::FineTokenSelection { tokens }
+}
+
+#[test]
+fn a_fine_stage_starts_as_the_coarse_model_it_extends() {
+    // Its head is zero at initialisation: a coarse model's trained weights with a fresh fine
+    // stage predict what the coarse model predicts, even with every token opened.
+    let coarse = trained_like(&small(), 21);
+    let fine_config = small_fine();
+    let stage = fine_config
+        .fine_stage()
+        .expect("a fine stage")
+        .init(&device());
+    let fine = coarse.clone().with_fine_stage(stage);
+    let (latents, actions) = inputs(&fine_config, 2, 22);
+    let levels = levels(&fine_config, 2, 500.0);
+    let all = selection(vec![(0..16).collect(), (0..16).collect()]);
+    let future = fine_config.future_frames;
+    let extended = fine.forward_selected(
+        latents.clone(),
+        actions.clone(),
+        &levels,
+        future,
+        None,
+        &all,
+    );
+    let plain = coarse.forward(latents, actions, &levels, future, None);
+    assert_eq!(values(extended), values(plain));
+}
+
+#[test]
+fn fine_tokens_change_only_the_cells_of_the_selected_tokens() {
+    let c = small_fine();
+    let model = trained_like(&c, 23);
+    let (latents, actions) = inputs(&c, 2, 24);
+    let levels = levels(&c, 2, 400.0);
+    let future = c.future_frames;
+    let run = |tokens: Vec<Vec<usize>>| {
+        values(model.forward_selected(
+            latents.clone(),
+            actions.clone(),
+            &levels,
+            future,
+            None,
+            &selection(tokens),
+        ))
+    };
+    let none = run(vec![vec![], vec![]]);
+    assert_eq!(
+        none,
+        values(model.forward(latents.clone(), actions.clone(), &levels, future, None)),
+        "no selection is the coarse model"
+    );
+    // Token 1 of item 0: token row 0, column 1, cells y 0..4, x 4..8 of every frame and
+    // channel. Nothing else may move; every one of its cells must.
+    let one = run(vec![vec![1], vec![]]);
+    let [h, w] = c.latent_size;
+    let channels = c.latent_channels;
+    for (index, (a, b)) in none.iter().zip(&one).enumerate() {
+        let x = index % w;
+        let y = (index / w) % h;
+        let item = index / (w * h * channels * future);
+        let inside = item == 0 && y < 4 && (4..8).contains(&x);
+        if inside {
+            assert!(
+                (a - b).abs() > 1e-7,
+                "cell {index} inside the token did not move"
+            );
+        } else {
+            assert_eq!(a, b, "cell {index} outside the token moved");
+        }
+    }
+}
+
+#[test]
+fn with_fine_tokens_the_cache_and_the_tensor_path_agree() {
+    // The fine stage reads the condition frames from the cache; under autodiff it runs burn's
+    // ops. All three must predict the same.
+    use burn::module::Module;
+    let c = small_fine();
+    let model = trained_like(&c, 25);
+    let (latents, actions) = inputs(&c, 2, 26);
+    let levels = levels(&c, 2, 300.0);
+    let chosen = selection(vec![vec![0, 5, 15], vec![6]]);
+    let (p, future) = (c.context_frames, c.future_frames);
+    let whole = values(model.forward_selected(
+        latents.clone(),
+        actions.clone(),
+        &levels,
+        future,
+        None,
+        &chosen,
+    ));
+    let future_levels: Vec<f32> = levels
+        .chunks(p + future)
+        .flat_map(|frames| frames[p..].to_vec())
+        .collect();
+    let cached = values(model.forward_future_selected(
+        &model.context(
+            latents.clone().narrow(1, 0, p),
+            actions.clone().narrow(1, 0, p),
+        ),
+        latents.clone().narrow(1, p, future),
+        actions.clone().narrow(1, p, future),
+        &future_levels,
+        None,
+        &chosen,
+    ));
+    assert!(
+        largest_gap(&whole, &cached) < 1e-4,
+        "cache: {}",
+        largest_gap(&whole, &cached)
+    );
+    let autodiff = device().autodiff();
+    let taught = model.to_device(&autodiff);
+    let taught_out = values(taught.forward_selected(
+        Tensor::<5>::from_data(latents.into_data(), &autodiff),
+        Tensor::<3>::from_data(actions.into_data(), &autodiff),
+        &levels,
+        future,
+        None,
+        &chosen,
+    ));
+    assert!(
+        largest_gap(&whole, &taught_out) < 1e-4,
+        "autodiff: {}",
+        largest_gap(&whole, &taught_out)
+    );
 }
