@@ -21,7 +21,7 @@ use bevworld_training::{
 };
 use bevworld_types::SplitMix64;
 use bevworld_world_model::ddim::noisy_and_target;
-use bevworld_world_model::weights::load_weights;
+use bevworld_world_model::weights::{load_meta, load_weights};
 use bevworld_world_model::{
     ActionStats, DdimConfig, ForecastInputs, LatentGrid, NoiseSchedule, WorldModel,
     WorldModelConfig, forecast,
@@ -75,6 +75,8 @@ pub fn columns() -> Vec<&'static str> {
     columns.extend(EGO_WARP_COLUMNS);
     // With `moving_weight`: the share of the step's cells it counts more.
     columns.push("moving_share");
+    // With `fine_tokens`: the share of the step's coarse tokens opened into fine ones.
+    columns.push("fine_share");
     columns
 }
 
@@ -333,6 +335,11 @@ impl WorldModelTrainer {
     /// weights must be of this model, trained on `tokenizer`'s latents (name, weights digest;
     /// `None`: the latents of any tokenizer, which the fine-tune adapts them to) with
     /// `action_stats`, or the actions would be normalised otherwise than they learnt.
+    ///
+    /// A model with `fine_tokens` may also start from the weights of the coarse model it
+    /// extends (weights of another model name): their shapes must be its coarse part's, and
+    /// its fine stage keeps its seeded initialisation, whose head is zero, so the fine-tune
+    /// starts as that coarse model.
     pub fn start_from(
         mut self,
         path: &Path,
@@ -340,7 +347,20 @@ impl WorldModelTrainer {
         action_stats: &ActionStats,
     ) -> Result<Self, TrainError> {
         let inner = self.device.clone().inner();
-        let loaded = load_weights(&self.model_config, path, tokenizer, &inner)?;
+        let recorded = load_meta(path)?.model;
+        let fine_stage = match self.model.fine_stage() {
+            Some(stage) if recorded != self.model_config.name => Some(stage.clone()),
+            _ => None,
+        };
+        let config = match fine_stage {
+            Some(_) => WorldModelConfig {
+                name: recorded,
+                fine_tokens: None,
+                ..self.model_config.clone()
+            },
+            None => self.model_config.clone(),
+        };
+        let loaded = load_weights(&config, path, tokenizer, &inner)?;
         if !loaded.meta.action_stats.matches(action_stats) {
             let describe =
                 |stats: &ActionStats| format!("{} actions, mean {:?}", stats.count, stats.mean);
@@ -350,16 +370,16 @@ impl WorldModelTrainer {
                 cache: describe(action_stats),
             });
         }
-        let name = self.model_config.name.clone();
-        self.model = load_module(
-            self.model_config.init(&self.device),
-            "world model",
-            &name,
-            path,
-        )?;
-        if self.weight_average.is_some() {
-            self.weight_average = Some(loaded.model);
-        }
+        let model = load_module(config.init(&self.device), "world model", &config.name, path)?;
+        let average = loaded.model;
+        (self.model, self.weight_average) = match fine_stage {
+            Some(stage) => (
+                model.with_fine_stage(stage.clone()),
+                self.weight_average
+                    .map(|_| average.with_fine_stage(stage.valid())),
+            ),
+            None => (model, self.weight_average.map(|_| average)),
+        };
         Ok(self)
     }
 
@@ -414,6 +434,7 @@ impl WorldModelTrainer {
             future: stage.future,
             grid: self.grid,
             base: self.model_config.ego_warp_base(),
+            fine: WindowShape::fine_of(&self.model_config),
         };
         let sequences = self.stage_sequences[stage_index]
             .as_ref()
@@ -426,6 +447,11 @@ impl WorldModelTrainer {
         );
         let target = self.model_config.diffusion.target;
         let moving_weight = self.config.moving_weight;
+        let fine = self.model_config.fine_tokens.is_some();
+        let tokens_per_frame = {
+            let [rows, columns] = self.model_config.token_grid();
+            rows * columns
+        };
         let batch = self.config.batch as f64;
         let outcomes = parallel_map(
             &micro,
@@ -460,16 +486,19 @@ impl WorldModelTrainer {
                     })
                     .collect();
                 let frames = Tensor::cat(vec![inputs.context, noisy], 1);
-                let output = model.forward(
+                let share = draws.len() as f64 / batch;
+                // The share of coarse tokens opened into fine ones, weighted as the loss.
+                let fine_share = fine.then(|| inputs.fine_tokens.share(tokens_per_frame) * share);
+                let output = model.forward_selected(
                     frames,
                     inputs.actions,
                     &frame_levels,
                     shape.future,
                     Some(inputs.warped),
+                    &inputs.fine_tokens,
                 );
                 // The mean over the batch: each micro-batch's mean weighted by its share.
                 let error = (output - wanted).abs();
-                let share = draws.len() as f64 / batch;
                 let (mean, moving) = match &moving_weight {
                     Some(weight) => {
                         let moving = scalar(weight.moving_cells(clean.clone()).mean()) * share;
@@ -480,12 +509,13 @@ impl WorldModelTrainer {
                 let loss = mean.mul_scalar(share);
                 let value = scalar(loss.clone());
                 let grads = GradientsParams::from_grads(loss.backward(), model);
-                (value, moving, grads)
+                (value, moving, fine_share, grads)
             },
         )
         .map_err(|source| TrainError::StepWorker { step, source })?;
-        let loss: f64 = outcomes.iter().map(|(v, _, _)| v).sum();
-        let moving_share: Option<f64> = outcomes.iter().map(|(_, m, _)| *m).sum();
+        let loss: f64 = outcomes.iter().map(|(v, _, _, _)| v).sum();
+        let moving_share: Option<f64> = outcomes.iter().map(|(_, m, _, _)| *m).sum();
+        let fine_share: Option<f64> = outcomes.iter().map(|(_, _, f, _)| *f).sum();
         if !loss.is_finite() {
             return Err(TrainError::NonFinite {
                 step,
@@ -500,7 +530,7 @@ impl WorldModelTrainer {
         let (model, grad_norm) = apply_gradients(
             self.model.clone(),
             &mut self.optimizer,
-            outcomes.into_iter().map(|(_, _, g)| g),
+            outcomes.into_iter().map(|(_, _, _, g)| g),
             self.config.optimizer.grad_clip_norm,
             lr,
         )
@@ -521,6 +551,7 @@ impl WorldModelTrainer {
             grad_norm,
             terms: std::iter::once(("stage", (stage_index + 1) as f64))
                 .chain(moving_share.map(|m| ("moving_share", m)))
+                .chain(fine_share.map(|f| ("fine_share", f)))
                 .collect(),
         })
     }
@@ -564,6 +595,7 @@ pub fn score_windows(
                 actions: batch.actions,
                 base: shape.base.residual.then_some(batch.base),
                 warped: batch.warped,
+                fine_tokens: batch.fine_tokens,
             };
             let predicted: Vec<f32> = forecast(model, config, &schedule, &inputs, sampler)?
                 .into_data()

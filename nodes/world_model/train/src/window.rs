@@ -3,8 +3,10 @@
 //! frame (the ego-warp baseline, and the base a residual model adds to), and the target the
 //! network learns to sample: the future latents, or their residual over that warp.
 
+use bevworld_world_model::fine_tokens::select_for_context;
 use bevworld_world_model::{
-    ActionStats, EgoWarpBase, LatentGrid, PlanarMotion, WorldModelConfig, warp_latent,
+    ActionStats, EgoWarpBase, FineTokenRule, FineTokenSelection, LatentGrid, PlanarMotion,
+    WorldModelConfig, warp_latent,
 };
 use burn::prelude::*;
 
@@ -18,6 +20,8 @@ pub struct WindowShape {
     pub grid: LatentGrid,
     /// What the future frames are diffused as the residual over.
     pub base: EgoWarpBase,
+    /// For a model with fine tokens: its patch and which tokens get them.
+    pub fine: Option<(usize, FineTokenRule)>,
 }
 
 /// A window on the host, standardised.
@@ -33,6 +37,9 @@ pub struct WindowValues {
     pub base_weights: Vec<f32>,
     /// `[context + future, 5]`, normalised.
     pub actions: Vec<f32>,
+    /// The coarse tokens that get fine tokens (`fine_tokens::select_for_context`); empty
+    /// without a fine stage.
+    pub fine_tokens: Vec<usize>,
 }
 
 impl WindowShape {
@@ -43,7 +50,16 @@ impl WindowShape {
             future: config.future_frames,
             grid: config.latent_grid(),
             base: config.ego_warp_base(),
+            fine: Self::fine_of(config),
         }
+    }
+
+    /// A model's fine-token patch and rule, if it has a fine stage.
+    pub fn fine_of(config: &WorldModelConfig) -> Option<(usize, FineTokenRule)> {
+        config
+            .fine_tokens
+            .as_ref()
+            .map(|fine| (config.patch, fine.select))
     }
 }
 
@@ -77,6 +93,19 @@ impl WindowValues {
                 0.0,
             ));
         }
+        let fine_tokens = match &shape.fine {
+            Some((patch, rule)) => {
+                let condition = &sequence.frames[start..start + shape.context];
+                let previous_from_frame: Vec<PlanarMotion> = condition
+                    .windows(2)
+                    .map(|pair| {
+                        PlanarMotion::between(&pair[0].global_from_ego, &pair[1].global_from_ego)
+                    })
+                    .collect();
+                select_for_context(&context, &shape.grid, &previous_from_frame, *patch, rule)
+            }
+            None => Vec::new(),
+        };
         let actions = (start..start + frames)
             .flat_map(|k| {
                 sequence
@@ -91,6 +120,7 @@ impl WindowValues {
             warped,
             base_weights,
             actions,
+            fine_tokens,
         }
     }
 
@@ -124,6 +154,7 @@ pub struct WindowBatch {
     /// The current latent warped into each future frame (`ego_warp_input`).
     pub warped: Tensor<5>, // [B, future, C, H, W]
     pub actions: Tensor<3>,  // [B, context + future, 5]
+    pub fine_tokens: FineTokenSelection,
 }
 
 impl WindowBatch {
@@ -151,6 +182,9 @@ impl WindowBatch {
                 ),
                 device,
             ),
+            fine_tokens: FineTokenSelection {
+                tokens: windows.iter().map(|w| w.fine_tokens.clone()).collect(),
+            },
         }
     }
 }

@@ -382,6 +382,7 @@ fn ego_warp_is_exact_where_the_world_stands_still_and_copy_last_is_not() {
             residual: true,
             fade_s: None,
         },
+        fine: None,
     };
     let window = WindowValues::cut(&sequences.sequences[0], 1, &shape, &actions);
     let plane = H * H;
@@ -471,6 +472,7 @@ fn training_data(dir: &Path) -> (TrainingData, ActionStats) {
             residual: true,
             fade_s: None,
         },
+        fine: None,
     };
     let validation = vec![WindowValues::cut(
         &keyframes.sequences[0],
@@ -891,4 +893,113 @@ fn the_fine_tune_configs_differ_from_each_other_only_where_each_says() {
     vehicles.init = stop.init.clone();
     vehicles.init_from_other_tokenizer = false;
     assert_eq!(vehicles, stop, "nothing else differs");
+    // The fine-token pair: both continue the shipped weights on the stop fine-tune's windows;
+    // the fine one's model is the shipped model's with a fine stage, and nothing else differs.
+    let mut fine = read("finetune-world-model-fine-tiny.yaml");
+    let mut coarse = read("finetune-world-model-coarse-tiny.yaml");
+    assert_eq!(
+        coarse.init.as_deref(),
+        Some(Path::new("nodes/world_model/weights/world-model-tiny.bpk"))
+    );
+    let model = |path: &Path| WorldModelConfig::from_yaml_file(&repo().join(path)).expect("model");
+    let (mut fine_model, coarse_model) = (model(&fine.model), model(&coarse.model));
+    assert!(fine_model.fine_tokens.is_some() && coarse_model.fine_tokens.is_none());
+    fine_model.fine_tokens = None;
+    fine_model.name = coarse_model.name.clone();
+    assert_eq!(
+        fine_model, coarse_model,
+        "the fine model adds its fine stage alone"
+    );
+    fine.model = coarse.model.clone();
+    assert_eq!(fine, coarse, "the ablation drops the fine stage alone");
+    coarse.init = stop.init.clone();
+    assert_eq!(
+        coarse, stop,
+        "on the stop fine-tune's windows, from the shipped weights"
+    );
+}
+
+#[test]
+fn a_model_with_fine_tokens_starts_from_its_coarse_weights_and_trains_its_fine_stage() {
+    use bevworld_blocks::init::random_normal;
+    use bevworld_world_model::weights::save_weights;
+    use bevworld_world_model::{FineTokenRule, FineTokenSelection, FineTokensConfig, WeightsMeta};
+    let dir = tempfile::tempdir().expect("dir");
+    let mut coarse = trainer(dir.path(), 2);
+    coarse.train_step().expect("step");
+    let (_, actions) = training_data(dir.path());
+    let path = dir.path().join("coarse.bpk");
+    let meta = WeightsMeta {
+        model: small_model().name,
+        tokenizer_model: "tokenizer-test".into(),
+        tokenizer_weights_hash: "abc".into(),
+        action_stats: actions.clone(),
+        steps: 1,
+        command: "test".into(),
+    };
+    save_weights(&coarse.shipped_model(), &meta, &path).expect("save");
+    let fine_model = |width: usize| {
+        let mut c = small_model();
+        c.name = "world-model-fine-test".into();
+        c.width = width;
+        c.fine_tokens = Some(FineTokensConfig {
+            width: 16,
+            depth: 1,
+            heads: 2,
+            select: FineTokenRule {
+                threshold: 0.0,
+                dilate: 0,
+            },
+        });
+        c
+    };
+    let mut fine = trainer_of(dir.path(), 2, fine_model(32))
+        .start_from(&path, Some(("tokenizer-test", "abc")), &actions)
+        .expect("a fine model from its coarse weights");
+    // It starts as the coarse model, every token opened.
+    let config = fine_model(32);
+    let device = Device::flex();
+    let frames = config.context_frames + config.future_frames;
+    let latents = random_normal(1, [1, frames, C, H, H], 0.0, 1.0, &device);
+    let actions_in = random_normal(2, [1, frames, 5], 0.0, 1.0, &device);
+    let levels = [0.0, 0.0, 300.0, 300.0];
+    let every = FineTokenSelection {
+        tokens: vec![(0..16).collect()],
+    };
+    let predict = |trainer: &WorldModelTrainer, selection: &FineTokenSelection| {
+        trainer
+            .shipped_model()
+            .forward_selected(
+                latents.clone(),
+                actions_in.clone(),
+                &levels,
+                2,
+                None,
+                selection,
+            )
+            .into_data()
+            .try_to_vec::<f32>()
+            .expect("f32")
+    };
+    assert_eq!(
+        predict(&fine, &every),
+        predict(&coarse, &FineTokenSelection::none(1))
+    );
+    // Its steps open the tokens where the hand-made scene moves, and move the fine stage.
+    let report = fine.train_step().expect("step");
+    let share = report
+        .term("fine_share")
+        .expect("the share of tokens opened");
+    assert!(share > 0.0 && share <= 1.0, "{share}");
+    assert_ne!(
+        predict(&fine, &every),
+        predict(&fine, &FineTokenSelection::none(1))
+    );
+    assert_eq!(coarse.train_step().expect("step").term("fine_share"), None);
+    // Coarse weights of another size are refused by the weights file, naming it.
+    let error = trainer_of(dir.path(), 2, fine_model(64))
+        .start_from(&path, Some(("tokenizer-test", "abc")), &actions)
+        .err()
+        .expect("a coarse model of another width");
+    assert!(error.to_string().contains("coarse.bpk"), "{error}");
 }
