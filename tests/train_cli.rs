@@ -569,6 +569,47 @@ fn the_vehicle_share_and_moving_weight_flags_are_checked_before_anything_is_writ
     assert_refused_before_writing(&detector, &run, "--moving-weight 0.5: not ≥ 1");
 }
 
+#[test]
+fn the_fine_select_flag_is_checked_before_anything_is_written() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = dir.path().join("run");
+    let fine = "configs/models/finetune-world-model-fine-tiny.yaml";
+    let coarse = "configs/models/finetune-world-model-coarse-tiny.yaml";
+    for (config, select, message) in [
+        (
+            fine,
+            "eight",
+            "--fine-select: 'eight' is not THRESHOLD,DILATE",
+        ),
+        (
+            fine,
+            "8,-1",
+            "--fine-select: '8,-1' is not THRESHOLD,DILATE",
+        ),
+        (fine, "-1,0", "fine_tokens.select.threshold: -1"),
+        (
+            coarse,
+            "8,1",
+            "--fine-select: the model 'world-model-tiny' has no fine tokens",
+        ),
+    ] {
+        let out = bevworld_owned(
+            &[
+                "train",
+                "world-model",
+                "--config",
+                config,
+                "--out",
+                run.to_str().expect("utf-8"),
+                // With `=`, a value that starts with a minus is the flag's, not a flag.
+                &format!("--fine-select={select}"),
+            ]
+            .map(String::from),
+        );
+        assert_refused_before_writing(&out, &run, message);
+    }
+}
+
 /// The command failed with status 1, its output names `message`, and it wrote no run folder.
 fn assert_refused_before_writing(bad: &std::process::Output, run: &Path, message: &str) {
     assert_eq!(bad.status.code(), Some(1), "{}", text(bad));

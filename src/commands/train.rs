@@ -85,6 +85,11 @@ pub struct TrainWorldModelArgs {
     /// (the standardised residual), e.g. `4,3` as `finetune-world-model-moving-tiny.yaml`.
     #[arg(long, value_name = "EXTRA,THRESHOLD")]
     pub moving_weight: Option<String>,
+    /// Which coarse tokens a model with fine tokens opens, overriding its config's
+    /// `fine_tokens.select`: a token opens where a cell's context change passes THRESHOLD,
+    /// dilated by DILATE tokens, e.g. `8,1`.
+    #[arg(long, value_name = "THRESHOLD,DILATE")]
+    pub fine_select: Option<String>,
 }
 
 #[derive(Args)]
@@ -368,6 +373,18 @@ fn world_model(args: &TrainWorldModelArgs) -> Result<ExitCode> {
                         }
                         _ => Err(anyhow!("--moving-weight: '{text}' is not EXTRA,THRESHOLD")),
                     }
+                })
+                .transpose()?,
+            fine_select: args
+                .fine_select
+                .as_deref()
+                .map(|text| {
+                    let refused = || anyhow!("--fine-select: '{text}' is not THRESHOLD,DILATE");
+                    let (threshold, dilate) = text.split_once(',').ok_or_else(refused)?;
+                    Ok::<_, anyhow::Error>(bevworld_world_model::FineTokenRule {
+                        threshold: threshold.trim().parse().map_err(|_| refused())?,
+                        dilate: dilate.trim().parse().map_err(|_| refused())?,
+                    })
                 })
                 .transpose()?,
         },

@@ -13,6 +13,7 @@ use bevworld_training::metrics_log::MetricsLogError;
 use bevworld_training::{LoopPlan, MetricsLog, Observer, Trainee, plot_curves, run_loop};
 use bevworld_types::file_digest;
 use bevworld_types::{LatentStatsFile, StatsFileError, stats_path_for};
+use bevworld_world_model::FineTokenRule;
 use bevworld_world_model::config::ConfigError as ModelConfigError;
 use bevworld_world_model::weights::{WorldModelWeightsError, save_weights};
 use bevworld_world_model::{ActionStats, Target, WeightsMeta, WorldModelConfig};
@@ -61,6 +62,8 @@ pub struct Overrides {
     pub init: Option<PathBuf>,
     /// The loss weighted where the residual moves, in place of the config's `moving_weight`.
     pub moving_weight: Option<MovingWeight>,
+    /// Which tokens a model with fine tokens opens, in place of its `fine_tokens.select`.
+    pub fine_select: Option<FineTokenRule>,
 }
 
 /// The configs as this run trains them: the files', then the overrides, checked again.
@@ -90,6 +93,18 @@ pub fn effective_configs(
     }
     if let Some(input) = set.ego_warp_input {
         model.ego_warp_input = input;
+    }
+    if let Some(rule) = set.fine_select {
+        let Some(fine) = model.fine_tokens.as_mut() else {
+            return Err(RunError::Override {
+                flag: "--fine-select",
+                message: format!(
+                    "the model '{}' has no fine tokens (fine_tokens in its config)",
+                    model.name
+                ),
+            });
+        };
+        fine.select = rule;
     }
     if let Some(kept) = &set.stages {
         let mut stages = Vec::new();
