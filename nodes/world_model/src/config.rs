@@ -220,21 +220,7 @@ impl WorldModelConfig {
                 ));
             }
         }
-        if self.heads > 0 && !self.width.is_multiple_of(self.heads) {
-            problems.push(ConfigProblem::new(
-                "heads",
-                format!("{} does not divide width {}", self.heads, self.width),
-            ));
-        }
-        if !self.width.is_multiple_of(4) {
-            problems.push(ConfigProblem::new(
-                "width",
-                format!(
-                    "{} (the 2D position encoding needs a multiple of 4)",
-                    self.width
-                ),
-            ));
-        }
+        require_token_width(&mut problems, ("width", self.width), ("heads", self.heads));
         if !self.condition_half.is_multiple_of(2) {
             problems.push(ConfigProblem::new(
                 "condition_half",
@@ -278,5 +264,26 @@ impl WorldModelConfig {
             ));
         }
         problems
+    }
+}
+
+/// A token width its attention heads divide and the 2D sine-cosine position encoding can
+/// split (a multiple of 4): the coarse tokens' and the fine tokens' alike.
+pub(crate) fn require_token_width(
+    problems: &mut Vec<ConfigProblem>,
+    (width_field, width): (&str, usize),
+    (heads_field, heads): (&str, usize),
+) {
+    if heads > 0 && !width.is_multiple_of(heads) {
+        problems.push(ConfigProblem::new(
+            heads_field,
+            format!("{heads} does not divide width {width}"),
+        ));
+    }
+    if !width.is_multiple_of(4) {
+        problems.push(ConfigProblem::new(
+            width_field,
+            format!("{width} (the 2D position encoding needs a multiple of 4)"),
+        ));
     }
 }

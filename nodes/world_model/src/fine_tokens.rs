@@ -17,6 +17,8 @@ use bevworld_types::bev_warp::{LatentGrid, PlanarMotion, warp_taps};
 use bevworld_types::problem::require_count;
 use serde::{Deserialize, Serialize};
 
+use crate::config::require_token_width;
+
 /// A cell's warp counts only where all of its bilinear taps fall inside the earlier frame's
 /// grid: a cell that enters the grid as the ego drives changes by construction, not by motion.
 const INSIDE: f32 = 0.999;
@@ -58,21 +60,11 @@ impl FineTokensConfig {
         ] {
             require_count(&mut problems, field, value);
         }
-        if self.heads > 0 && !self.width.is_multiple_of(self.heads) {
-            problems.push(ConfigProblem::new(
-                "fine_tokens.heads",
-                format!("{} does not divide width {}", self.heads, self.width),
-            ));
-        }
-        if !self.width.is_multiple_of(4) {
-            problems.push(ConfigProblem::new(
-                "fine_tokens.width",
-                format!(
-                    "{} (the 2D position encoding needs a multiple of 4)",
-                    self.width
-                ),
-            ));
-        }
+        require_token_width(
+            &mut problems,
+            ("fine_tokens.width", self.width),
+            ("fine_tokens.heads", self.heads),
+        );
         let threshold = self.select.threshold;
         if !(threshold.is_finite() && threshold >= 0.0) {
             problems.push(ConfigProblem::new(

@@ -248,16 +248,21 @@ impl WorldModel {
         for (block, prefix) in self.blocks.iter().zip(&cache.keys_values) {
             x = block.forward_after(x, condition.clone(), prefix, mask.clone());
         }
-        let correction = self.fine.as_ref().map(|fine| {
-            fine.forward(FineInputs {
-                latents: Tensor::cat(vec![cache.latents.clone(), future], 1),
-                warped,
-                coarse: x.clone(),
-                condition: Tensor::cat(vec![cache.condition.clone(), condition.clone()], 1),
-                causal: causal_mask(all, &device),
-                selection,
-            })
-        });
+        // No token opened: the coarse prediction as it is, without gathering anything.
+        let correction = self
+            .fine
+            .as_ref()
+            .filter(|_| selection.count() > 0)
+            .map(|fine| {
+                fine.forward(FineInputs {
+                    latents: Tensor::cat(vec![cache.latents.clone(), future], 1),
+                    warped,
+                    coarse: x.clone(),
+                    condition: Tensor::cat(vec![cache.condition.clone(), condition.clone()], 1),
+                    causal: causal_mask(all, &device),
+                    selection,
+                })
+            });
         self.head(x, condition, correction)
     }
 
@@ -299,16 +304,21 @@ impl WorldModel {
         let (x, condition) = self.encode(latents.clone(), actions, levels, warped.clone());
         let first = frames - future;
         let x = x.narrow(1, first, future);
-        let correction = self.fine.as_ref().map(|fine| {
-            fine.forward(FineInputs {
-                latents,
-                warped,
-                coarse: x.clone(),
-                condition: condition.clone(),
-                causal: causal_mask(frames, &x.device()),
-                selection,
-            })
-        });
+        // No token opened: the coarse prediction as it is, without gathering anything.
+        let correction = self
+            .fine
+            .as_ref()
+            .filter(|_| selection.count() > 0)
+            .map(|fine| {
+                fine.forward(FineInputs {
+                    latents,
+                    warped,
+                    coarse: x.clone(),
+                    condition: condition.clone(),
+                    causal: causal_mask(frames, &x.device()),
+                    selection,
+                })
+            });
         self.head(x, condition.narrow(1, first, future), correction)
     }
 
