@@ -11,6 +11,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod action;
+pub mod agent_track;
 pub mod agent_warp;
 pub mod bev;
 pub mod bev_warp;
@@ -34,6 +35,7 @@ pub mod score_table;
 pub mod splitmix;
 
 pub use action::EgoAction;
+pub use agent_track::{AgentTrack, TrackRule, track_agents};
 pub use agent_warp::{AgentMotion, Footprint, move_agents};
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use bev_warp::{LatentGrid, PlanarMotion, WarpTaps, taps_at, warp_latent, warp_taps};
