@@ -9,6 +9,9 @@
 //!   left to the model.
 //! - Its heading follows its path: the turn between the mode's first step and its step at the
 //!   horizon. With `follow: velocity` it goes on at its detected velocity instead, heading kept.
+//!   With `follow: track` it goes on at the velocity of its track: where the same agent was
+//!   detected in the frames before (`bevworld_types::agent_track`), heading kept; an agent no
+//!   earlier frame holds is left to the model.
 //! - A forecast waits for the current frame's latent and detections (matched by frame token).
 //!   One whose frame never brings them passes on without the new latent, and is counted.
 
@@ -22,7 +25,7 @@ use bevworld_types::action::wrap_angle;
 use bevworld_types::detection::DETECTION_NAMES;
 use bevworld_types::{
     AgentMotion, BevFeatures, DetectedAgent, Footprint, Forecast, ForecastMethod, FrameDetections,
-    LatentGrid, PlanarMotion, move_agents,
+    LatentGrid, PlanarMotion, TrackRule, move_agents, track_agents,
 };
 use serde::{Deserialize, Serialize};
 
@@ -46,9 +49,13 @@ pub struct MoveAgentsParams {
     /// The detection names moved.
     #[serde(default = "default_classes")]
     pub classes: Vec<String>,
-    /// What carries an agent: its most probable trajectory mode, or its detected velocity.
+    /// What carries an agent: its most probable trajectory mode, its detected velocity, or
+    /// the velocity of its track across frames.
     #[serde(default)]
     pub follow: Follow,
+    /// How `follow: track` links an agent to its detections in earlier frames.
+    #[serde(default)]
+    pub track: TrackParams,
     /// Most forecasts, latents and detections held while they wait for each other.
     #[serde(default = "default_max_held")]
     pub max_held: usize,
@@ -63,6 +70,51 @@ pub enum Follow {
     Mode,
     /// The detected velocity, constant.
     Velocity,
+    /// The velocity of its track through the earlier frames' detections, constant.
+    Track,
+}
+
+/// `follow: track`'s linking (`bevworld_types::TrackRule`; the score bar is `min_score`).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackParams {
+    /// Frames in a track, the current one included.
+    #[serde(default = "default_track_frames")]
+    pub frames: usize,
+    /// Fastest speed a first link may imply, m/s.
+    #[serde(default = "default_max_speed")]
+    pub max_speed_mps: f64,
+    /// How far from where the track's velocity puts it an earlier detection may lie, m.
+    #[serde(default = "default_gate")]
+    pub gate_m: f64,
+    /// A track slower than this stands, m/s: a detector's positions jitter by decimetres, which
+    /// a track of a parked car turns into a speed that would carry it metres by 3 s.
+    #[serde(default = "default_min_speed")]
+    pub min_speed_mps: f64,
+}
+
+impl Default for TrackParams {
+    fn default() -> Self {
+        Self {
+            frames: default_track_frames(),
+            max_speed_mps: default_max_speed(),
+            gate_m: default_gate(),
+            min_speed_mps: default_min_speed(),
+        }
+    }
+}
+
+fn default_track_frames() -> usize {
+    3
+}
+fn default_max_speed() -> f64 {
+    20.0
+}
+fn default_gate() -> f64 {
+    2.0
+}
+fn default_min_speed() -> f64 {
+    2.0
 }
 
 fn default_min_score() -> f64 {
@@ -120,6 +172,30 @@ fn check(params: &MoveAgentsParams) -> Result<(), ParamError> {
                 .with_accepted(DETECTION_NAMES.join(", ")),
         );
     }
+    if !(2..=16).contains(&params.track.frames) {
+        return Err(ParamError::field(
+            "track.frames",
+            format!("{} must lie in 2..=16", params.track.frames),
+        ));
+    }
+    if !(params.track.max_speed_mps.is_finite() && params.track.max_speed_mps > 0.0) {
+        return Err(ParamError::field(
+            "track.max_speed_mps",
+            format!("{} must be a speed > 0 m/s", params.track.max_speed_mps),
+        ));
+    }
+    if !(params.track.gate_m.is_finite() && params.track.gate_m > 0.0) {
+        return Err(ParamError::field(
+            "track.gate_m",
+            format!("{} must be a distance > 0 m", params.track.gate_m),
+        ));
+    }
+    if !(params.track.min_speed_mps.is_finite() && params.track.min_speed_mps >= 0.0) {
+        return Err(ParamError::field(
+            "track.min_speed_mps",
+            format!("{} must be a speed ≥ 0 m/s", params.track.min_speed_mps),
+        ));
+    }
     if params.max_held == 0 || params.max_held > 100_000 {
         return Err(ParamError::field(
             "max_held",
@@ -130,7 +206,8 @@ fn check(params: &MoveAgentsParams) -> Result<(), ParamError> {
 }
 
 /// Where a detected agent will be `frames_ahead` trajectory steps (of `interval_s`) on, in the
-/// current ego frame: by its most probable mode, or its velocity (`follow`). `None` past the
+/// current ego frame: by its most probable mode, or its velocity (`follow`: `velocity` and
+/// `track` carry the agent's `velocity`, whichever gave it). `None` past the
 /// mode's end or when it moves less than `min_move_m`.
 pub fn agent_motion(
     agent: &DetectedAgent,
@@ -147,7 +224,7 @@ pub fn agent_motion(
         width: agent.size[0],
     };
     let moved_enough = |then: [f64; 2]| (then[0] - now[0]).hypot(then[1] - now[1]) >= min_move_m;
-    if follow == Follow::Velocity {
+    if follow != Follow::Mode {
         let seconds = frames_ahead as f64 * interval_s;
         let then = [
             now[0] + agent.velocity[0] * seconds,
@@ -199,15 +276,56 @@ pub struct Moved {
     pub horizons_past_trajectories: u64,
 }
 
+/// The agents `follow` moves: `detections`' own, or with `follow: track` those whose track
+/// through `earlier` (the scene's frames before, newest first) gives a velocity, with it.
+fn agents_to_move(
+    detections: &FrameDetections,
+    earlier: &[&FrameDetections],
+    params: &MoveAgentsParams,
+) -> Vec<DetectedAgent> {
+    let accepted = |a: &DetectedAgent| {
+        a.score >= params.min_score && params.classes.contains(&a.detection_name)
+    };
+    if params.follow != Follow::Track {
+        return detections
+            .agents
+            .iter()
+            .filter(|a| accepted(a))
+            .cloned()
+            .collect();
+    }
+    let rule = TrackRule {
+        frames: params.track.frames,
+        max_speed_mps: params.track.max_speed_mps,
+        gate_m: params.track.gate_m,
+        min_score: params.min_score,
+    };
+    track_agents(detections, earlier, &rule)
+        .iter()
+        .zip(&detections.agents)
+        .filter(|(_, a)| accepted(a))
+        .filter_map(|(track, a)| {
+            let velocity = track.velocity()?;
+            (velocity[0].hypot(velocity[1]) >= params.track.min_speed_mps).then(|| DetectedAgent {
+                velocity,
+                ..a.clone()
+            })
+        })
+        .collect()
+}
+
 /// Adds `model_with_agents` to every horizon of `forecast`: its model latent with the agents
 /// of `detections` (of the forecast's current frame, whose latent is `current`) carried.
+/// `earlier` holds the scene's detections before it, newest first (`follow: track` reads them).
 pub fn with_agents(
     forecast: &mut Forecast,
     current: &BevFeatures,
     detections: &FrameDetections,
+    earlier: &[&FrameDetections],
     params: &MoveAgentsParams,
 ) -> Result<Moved, String> {
     let interval = detections.interval_s;
+    let candidates = agents_to_move(detections, earlier, params);
     let grid = LatentGrid::of(&current.grid, current.channels.len());
     let mut moved = Moved::default();
     for horizon in &mut forecast.horizons {
@@ -244,10 +362,8 @@ pub fn with_agents(
             moved.horizons_past_trajectories += 1;
             continue;
         }
-        let agents: Vec<AgentMotion> = detections
-            .agents
+        let agents: Vec<AgentMotion> = candidates
             .iter()
-            .filter(|a| a.score >= params.min_score && params.classes.contains(&a.detection_name))
             .filter_map(|a| {
                 agent_motion(a, frames_ahead, interval, params.follow, params.min_move_m)
             })
@@ -292,6 +408,48 @@ fn passed<'a>(mut items: impl Iterator<Item = (&'a str, i64)>, scene: &str, time
 }
 
 impl MoveAgentsNode {
+    /// The frames a track of `current`'s agents may reach: its scene's held detections before
+    /// it, newest first, as many as a track holds (none unless `follow: track`).
+    fn earlier(&self, current: &FrameDetections) -> Vec<&FrameDetections> {
+        if self.params.follow != Follow::Track {
+            return Vec::new();
+        }
+        let mut earlier: Vec<&FrameDetections> = self
+            .detections
+            .iter()
+            .map(|d| d.as_ref())
+            .filter(|d| {
+                d.meta.scene_name == current.meta.scene_name
+                    && d.meta.time_of_validity_us < current.meta.time_of_validity_us
+            })
+            .collect();
+        earlier.sort_by_key(|d| std::cmp::Reverse(d.meta.time_of_validity_us));
+        earlier.truncate(self.params.track.frames - 1);
+        earlier
+    }
+
+    /// The time from which `scene`'s detections are still needed once its frame at `time_us`
+    /// is settled: that frame's, or with `follow: track`, the earliest of the frames a later
+    /// track may reach (the frames before it that a track of it would hold, and it).
+    fn kept_detections_from(&self, scene: &str, time_us: i64) -> i64 {
+        if self.params.follow != Follow::Track {
+            return time_us;
+        }
+        let mut times: Vec<i64> = self
+            .detections
+            .iter()
+            .filter(|d| d.meta.scene_name == scene && d.meta.time_of_validity_us <= time_us)
+            .map(|d| d.meta.time_of_validity_us)
+            .collect();
+        times.sort_unstable_by(|a, b| b.cmp(a));
+        // A track from the next frame holds `frames − 1` earlier ones: this one and those before.
+        times
+            .get(self.params.track.frames.saturating_sub(2))
+            .copied()
+            .unwrap_or(time_us)
+            .min(time_us)
+    }
+
     fn bounded<T>(queue: &mut VecDeque<T>, max: usize) {
         while queue.len() > max {
             queue.pop_front();
@@ -338,21 +496,25 @@ impl MoveAgentsNode {
             };
             match found {
                 Some((latent, detections)) => {
+                    let earlier = self.earlier(&detections);
                     // A latent of another kind than the forecast's is a graph wired to two
                     // tokenizers: every frame would fail alike, so the run stops, naming both.
-                    let moved = with_agents(&mut forecast, &latent, &detections, &self.params)
-                        .map_err(NodeError::fatal)?;
+                    let moved =
+                        with_agents(&mut forecast, &latent, &detections, &earlier, &self.params)
+                            .map_err(NodeError::fatal)?;
                     self.agents += moved.agents;
                     self.horizons_past_trajectories += moved.horizons_past_trajectories;
                 }
                 None => self.forecasts_without_agents += 1,
             }
-            // What lies before this frame of its scene is no longer needed.
+            // What lies before this frame of its scene is no longer needed, but for the
+            // detections a track reaches back to.
             let scene = forecast.context.scene_name.clone();
             self.latents
                 .retain(|l| l.meta.scene_name != scene || l.meta.time_of_validity_us >= time);
+            let kept_from = self.kept_detections_from(&scene, time);
             self.detections
-                .retain(|d| d.meta.scene_name != scene || d.meta.time_of_validity_us >= time);
+                .retain(|d| d.meta.scene_name != scene || d.meta.time_of_validity_us >= kept_from);
             self.forecasts += 1;
             out.set_time_of_validity(time);
             out.send(&FORECAST, forecast)?;
@@ -564,7 +726,7 @@ mod tests {
             margin_m: 5.0,
             ..serde_json::from_str("{}").expect("defaults")
         };
-        let moved = with_agents(&mut forecast, &current, &detections, &params).expect("moved");
+        let moved = with_agents(&mut forecast, &current, &detections, &[], &params).expect("moved");
         assert_eq!(
             moved,
             Moved {
@@ -585,7 +747,7 @@ mod tests {
         // A latent of other weights is refused, naming both.
         let mut other = BevFeatures::clone(&current);
         other.weights_hash = "xyz".into();
-        let error = with_agents(&mut forecast, &other, &detections, &params).unwrap_err();
+        let error = with_agents(&mut forecast, &other, &detections, &[], &params).unwrap_err();
         assert!(error.contains("abc") && error.contains("xyz"), "{error}");
     }
 
@@ -629,9 +791,203 @@ mod tests {
                 },
                 "max_held",
             ),
+            (
+                MoveAgentsParams {
+                    track: TrackParams {
+                        frames: 1,
+                        ..defaults.track
+                    },
+                    ..defaults.clone()
+                },
+                "track.frames",
+            ),
+            (
+                MoveAgentsParams {
+                    track: TrackParams {
+                        max_speed_mps: 0.0,
+                        ..defaults.track
+                    },
+                    ..defaults.clone()
+                },
+                "track.max_speed_mps",
+            ),
+            (
+                MoveAgentsParams {
+                    track: TrackParams {
+                        gate_m: f64::INFINITY,
+                        ..defaults.track
+                    },
+                    ..defaults.clone()
+                },
+                "track.gate_m",
+            ),
+            (
+                MoveAgentsParams {
+                    track: TrackParams {
+                        min_speed_mps: -1.0,
+                        ..defaults.track
+                    },
+                    ..defaults.clone()
+                },
+                "track.min_speed_mps",
+            ),
         ] {
             let error = format!("{:?}", check(&params).expect_err(field));
             assert!(error.contains(field), "{field}: {error}");
         }
+    }
+
+    /// The scene "a" at `time_s`, the ego standing at the origin: its latent (a car, 9, in
+    /// row 4, column `car_column`) and its detections (the car at `car_x`, y = 10).
+    fn frame_at(time_s: f64, car_column: usize, car_x: f64) -> (Arc<BevFeatures>, FrameDetections) {
+        let mut data = vec![0.0; 64];
+        data[4 * 8 + car_column] = 9.0;
+        let mut latent = BevFeatures::clone(&latent(data, 0.0));
+        latent.meta.frame_token = format!("f{time_s}");
+        latent.meta.time_of_validity_us = (time_s * 1e6).round() as i64;
+        let mut car = agent("car", 0.9, Vec::new());
+        car.centre = [car_x, 10.0, 0.8];
+        let detections = FrameDetections {
+            meta: latent.meta.clone(),
+            agents: vec![car],
+            interval_s: 0.5,
+            model: "detector-tiny".into(),
+            weights_hash: "d".into(),
+        };
+        (Arc::new(latent), detections)
+    }
+
+    fn forecast_of(current: &BevFeatures) -> Forecast {
+        Forecast {
+            context: current.meta.clone(),
+            actions_from: "log".into(),
+            future_actions: Vec::new(),
+            horizons: vec![ForecastHorizon {
+                horizon_s: 1.0,
+                frames_ahead: 2,
+                latents: vec![(ForecastMethod::Model, latent(vec![0.0; 64], 0.0))],
+                samples: Vec::new(),
+            }],
+            sampling_ms: 1.0,
+        }
+    }
+
+    #[test]
+    fn a_tracked_car_goes_on_at_the_speed_of_its_detections_and_an_untracked_one_stays() {
+        // The car at x = −60 half a second ago and at −50 now (row 4, column 1): 20 m/s along
+        // +x. At +1 s it is at −30 (column 2). Its velocity head says it stands; no modes.
+        let (_, before) = frame_at(0.0, 1, -60.0);
+        let (current, now) = frame_at(0.5, 1, -50.0);
+        let params = MoveAgentsParams {
+            follow: Follow::Track,
+            margin_m: 5.0,
+            ..serde_json::from_str("{}").expect("defaults")
+        };
+        let mut forecast = forecast_of(&current);
+        let moved = with_agents(&mut forecast, &current, &now, &[&before], &params).expect("moved");
+        assert_eq!(moved.agents, 1);
+        let with = forecast.horizons[0]
+            .latent(ForecastMethod::ModelWithAgents)
+            .expect("added");
+        assert_eq!(with.data[4 * 8 + 2], 9.0);
+        assert_eq!(with.data.iter().filter(|&&v| v != 0.0).count(), 1);
+        // With no earlier frame there is no track: the car is left to the model; so it is by
+        // its velocity head, which says it stands; and so is a track slower than the bar
+        // (1 m in the half second: 2 m/s against 2.5), though it would move 2 m by +1 s.
+        let (_, crawled) = frame_at(0.0, 1, -51.0);
+        let slow = MoveAgentsParams {
+            track: TrackParams {
+                min_speed_mps: 2.5,
+                ..params.track
+            },
+            ..params.clone()
+        };
+        for (follow, earlier, params) in [
+            (Follow::Track, vec![], &params),
+            (Follow::Velocity, vec![&before], &params),
+            (Follow::Track, vec![&crawled], &slow),
+        ] {
+            let mut forecast = forecast_of(&current);
+            let params = MoveAgentsParams {
+                follow,
+                ..params.clone()
+            };
+            let moved =
+                with_agents(&mut forecast, &current, &now, &earlier, &params).expect("moved");
+            assert_eq!(moved.agents, 0, "{follow:?}");
+        }
+        // The same crawl at the default bar (2 m/s) is carried.
+        let mut forecast = forecast_of(&current);
+        let moved =
+            with_agents(&mut forecast, &current, &now, &[&crawled], &params).expect("moved");
+        assert_eq!(moved.agents, 1);
+    }
+
+    #[test]
+    fn the_node_keeps_the_detections_a_later_track_reaches_back_to() {
+        let params = MoveAgentsParams {
+            follow: Follow::Track,
+            ..serde_json::from_str("{}").expect("defaults")
+        };
+        let mut node = MoveAgentsNode {
+            params,
+            latents: VecDeque::new(),
+            detections: VecDeque::new(),
+            pending: VecDeque::new(),
+            forecasts: 0,
+            agents: 0,
+            horizons_past_trajectories: 0,
+            forecasts_without_agents: 0,
+        };
+        let header = |seq| bevworld_graph::Header {
+            seq,
+            time_of_validity_us: 0,
+            entered_graph: bevworld_graph::Instant::now(),
+        };
+        let mut out = Outputs::detached(&["forecast"]);
+        // 10 m/s along +x, frames 0.5 s apart; a forecast from the second and third frames.
+        let frames: Vec<_> = (0..3)
+            .map(|k| frame_at(0.5 * k as f64, 1, -50.0 + 5.0 * k as f64))
+            .collect();
+        for (k, (latent, detections)) in frames.iter().enumerate() {
+            let mut messages = vec![
+                None,
+                Some(bevworld_graph::Message::new(
+                    header(k as u64),
+                    detections.clone(),
+                )),
+                Some(bevworld_graph::Message::new(
+                    header(k as u64),
+                    BevFeatures::clone(latent),
+                )),
+            ];
+            if k >= 1 {
+                messages[0] = Some(bevworld_graph::Message::new(
+                    header(k as u64),
+                    forecast_of(latent),
+                ));
+            }
+            let inputs = Inputs::from_messages(&["forecast", "detections", "latent"], messages);
+            node.process(&inputs, &mut out).expect("processed");
+            if k == 1 {
+                // Settled at 0.5 s: its frame and the one before stay for the next track.
+                let held: Vec<i64> = node
+                    .detections
+                    .iter()
+                    .map(|d| d.meta.time_of_validity_us)
+                    .collect();
+                assert_eq!(held, vec![0, 500_000]);
+            }
+        }
+        assert_eq!(node.forecasts, 2);
+        // Each forecast moved its car: from a track of two frames, then of three.
+        assert_eq!(node.agents, 2);
+        let earlier = node.earlier(&frames[2].1);
+        let times: Vec<i64> = earlier.iter().map(|d| d.meta.time_of_validity_us).collect();
+        assert_eq!(times, vec![500_000]);
+        // Without tracking, nothing before the settled frame is kept.
+        node.params.follow = Follow::Velocity;
+        assert_eq!(node.kept_detections_from("a", 1_000_000), 1_000_000);
+        assert!(node.earlier(&frames[2].1).is_empty());
     }
 }
