@@ -541,6 +541,9 @@ fn the_agent_graph_adds_the_model_with_its_agents_and_the_box_warp_carries_the_m
         "sensors=[lidar]".into(),
         "--set".into(),
         "methods=[model,model_with_agents,latent_ego_warp,latent_box_warp]".into(),
+        // The cars follow their tracks, so the node holds earlier frames' detections back.
+        "--set".into(),
+        "agents.follow=track".into(),
         "--json".into(),
     ]);
     assert!(output.status.success(), "{}", text(&output));

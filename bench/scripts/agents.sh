@@ -16,8 +16,12 @@
 #     detected car of score 0.3 or more follows its most probable mode).
 #  4. What the two detectors' motion outputs say of the cars they find on the validation
 #     keyframes (agents-detector-motion.py).
-#  5. With TEST=1, instead of 1-4: the bound and the chosen agent layer (the weighted
-#     detector, following the velocity) on the test scenes (9500-9503), once.
+#  5. The agent layer with each car carried at the velocity of its track across the context
+#     frames' detections (`agents.follow=track`), for the three detectors, and with the
+#     speed under which a track stands at 0 and 4 m/s instead of 2.
+#  6. With TEST=1, instead of 1-5: the bound and the chosen agent layers (the weighted
+#     detector following its velocity, and following the tracks) on the test scenes
+#     (9500-9503), once.
 #   bench/scripts/agents.sh [BEVWORLD_BINARY]
 #   TEST=1 bench/scripts/agents.sh [BEVWORLD_BINARY]
 set -euo pipefail
@@ -39,12 +43,12 @@ bound() { # SPLIT LABEL TOKENIZER WORLD_MODEL MARGIN MOTION [BASE]
         --set "views.box_base=${7:-latent_ego_warp}" \
         --json > "bench/results/agents-bound-$1-$2.json"
 }
-layer() { # SPLIT LABEL TOKENIZER WORLD_MODEL DETECTOR FOLLOW MIN_SCORE
+layer() { # SPLIT LABEL TOKENIZER WORLD_MODEL DETECTOR FOLLOW MIN_SCORE [--set ...]
     $BIN eval forecast --graph configs/graphs/forecast_agents.yaml --data "out/synth-wm-$1" \
         --out "out/eval-agents-$1-$2" \
         --set "models.tiny.tokenizer.weights=$3" --set "models.tiny.world_model.weights=$4" \
         --set "detector=$5" --set "agents.follow=$6" --set "min_score=$7" --set "sensors=[lidar]" \
-        --set "methods=[model,model_with_agents,latent_ego_warp,oracle]" \
+        --set "methods=[model,model_with_agents,latent_ego_warp,oracle]" "${@:8}" \
         --json > "bench/results/agents-$1-$2.json"
 }
 if [ "${TEST:-0}" = 1 ]; then
@@ -54,6 +58,7 @@ if [ "${TEST:-0}" = 1 ]; then
     bound test shipped-on-model $TS $WS 1.25 future_box model
     bound test vehicles-on-model $TV $WV 1.25 future_box model
     layer test vehicles-moving-velocity $TV $WV $DM velocity 0.3
+    layer test vehicles-track $TV $WV $DV track 0.3
     for f in bench/results/agents-bound-test-*.json bench/results/agents-test-*.json; do
         $TABLES "$f"
     done
@@ -84,6 +89,11 @@ motion() { # LABEL TOKENIZER DETECTOR
 motion shipped $TS $DS
 motion vehicles $TV $DV
 motion vehicles-moving $TV $DM
+layer val vehicles-track $TV $WV $DV track 0.3
+layer val vehicles-track-s0 $TV $WV $DV track 0.3 --set agents.track.min_speed_mps=0
+layer val vehicles-track-s4 $TV $WV $DV track 0.3 --set agents.track.min_speed_mps=4
+layer val vehicles-moving-track $TV $WV $DM track 0.3
+layer val shipped-track $TS $WS $DS track 0.3
 for f in bench/results/agents-bound-val-*.json bench/results/agents-val-*.json; do
     $TABLES "$f"
 done

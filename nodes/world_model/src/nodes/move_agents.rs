@@ -10,8 +10,8 @@
 //! - Its heading follows its path: the turn between the mode's first step and its step at the
 //!   horizon. With `follow: velocity` it goes on at its detected velocity instead, heading kept.
 //!   With `follow: track` it goes on at the velocity of its track: where the same agent was
-//!   detected in the frames before (`bevworld_types::agent_track`), heading kept; an agent no
-//!   earlier frame holds is left to the model.
+//!   detected in the frames before (`bevworld_types::agent_track`), its footprint turned along
+//!   that velocity; an agent no earlier frame holds is left to the model.
 //! - A forecast waits for the current frame's latent and detections (matched by frame token).
 //!   One whose frame never brings them passes on without the new latent, and is counted.
 
@@ -306,8 +306,11 @@ fn agents_to_move(
         .filter(|(_, a)| accepted(a))
         .filter_map(|(track, a)| {
             let velocity = track.velocity()?;
+            // A moving car points where it drives, which its track says better than a
+            // detector's heading (a car's box is the same turned half a turn).
             (velocity[0].hypot(velocity[1]) >= params.track.min_speed_mps).then(|| DetectedAgent {
                 velocity,
+                yaw: velocity[1].atan2(velocity[0]),
                 ..a.clone()
             })
         })
@@ -886,6 +889,13 @@ mod tests {
         let mut forecast = forecast_of(&current);
         let moved = with_agents(&mut forecast, &current, &now, &[&before], &params).expect("moved");
         assert_eq!(moved.agents, 1);
+        // Detected across the street, it is turned along its track.
+        let mut across = now.clone();
+        across.agents[0].yaw = std::f64::consts::FRAC_PI_2;
+        let carried = agents_to_move(&across, &[&before], &params);
+        assert_eq!(carried.len(), 1);
+        assert!(carried[0].yaw.abs() < 1e-12, "{}", carried[0].yaw);
+        assert!((carried[0].velocity[0] - 20.0).abs() < 1e-9);
         let with = forecast.horizons[0]
             .latent(ForecastMethod::ModelWithAgents)
             .expect("added");
