@@ -18,7 +18,8 @@
 #     keyframes (agents-detector-motion.py).
 #  5. The agent layer with each car carried at the velocity of its track across the context
 #     frames' detections (`agents.follow=track`), for the three detectors, and with the
-#     speed under which a track stands at 0 and 4 m/s instead of 2.
+#     speed under which a track stands at 0 and 4 m/s instead of 2; then each annotated car's
+#     speed as the tracks and the velocity head tell it (`agent_tracks`, at 2 and 4 m/s).
 #  6. With TEST=1, instead of 1-5: the bound and the chosen agent layers (the weighted
 #     detector following its velocity, and following the tracks) on the test scenes
 #     (9500-9503), once.
@@ -59,6 +60,14 @@ if [ "${TEST:-0}" = 1 ]; then
     bound test vehicles-on-model $TV $WV 1.25 future_box model
     layer test vehicles-moving-velocity $TV $WV $DM velocity 0.3
     layer test vehicles-track $TV $WV $DV track 0.3
+    $BIN run configs/graphs/detect.yaml --set "models.tiny.tokenizer.weights=$TV" \
+        --set "detector=$DV" --set data=out/synth-wm-test --set source.sweeps=false \
+        --set out=out/eval-agents-detect-test-vehicles --set pictures=false --overwrite
+    for v in 2 4; do
+        cargo run --release -p bevworld-bench --bin agent_tracks -- --data out/synth-wm-test \
+            --results out/eval-agents-detect-test-vehicles/results_nusc.json \
+            --min-speed $v --json "bench/results/agent-tracks-test-vehicles-s$v.json"
+    done
     for f in bench/results/agents-bound-test-*.json bench/results/agents-test-*.json; do
         $TABLES "$f"
     done
@@ -94,6 +103,11 @@ layer val vehicles-track-s0 $TV $WV $DV track 0.3 --set agents.track.min_speed_m
 layer val vehicles-track-s4 $TV $WV $DV track 0.3 --set agents.track.min_speed_mps=4
 layer val vehicles-moving-track $TV $WV $DM track 0.3
 layer val shipped-track $TS $WS $DS track 0.3
+SPEEDS="cargo run --release -p bevworld-bench --bin agent_tracks --"
+for v in 2 4; do
+    $SPEEDS --data out/synth-wm-val --results out/eval-agents-detect-val-vehicles/results_nusc.json \
+        --min-speed $v --json "bench/results/agent-tracks-val-vehicles-s$v.json"
+done
 for f in bench/results/agents-bound-val-*.json bench/results/agents-val-*.json; do
     $TABLES "$f"
 done
