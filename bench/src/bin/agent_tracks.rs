@@ -12,7 +12,7 @@ use std::path::Path;
 
 use bevworld_bench::agent_tracks::{MATCH_DISTANCE_M, MOVING_FROM_MPS, TrackSpeeds, track_speeds};
 use bevworld_sensors::{Dataset, DatasetOptions};
-use bevworld_types::{DetectionResults, TrackRule};
+use bevworld_types::DetectionResults;
 use bevworld_world_model::nodes::move_agents::MoveAgentsParams;
 
 const USAGE: &str = "usage: agent_tracks --data DIR --results results_nusc.json [--min-speed M/S] [--json OUT] | agent_tracks --table LABEL=FILE.json ...";
@@ -105,12 +105,7 @@ fn main() {
     }
     let layer: MoveAgentsParams =
         serde_json::from_str("{}").unwrap_or_else(|e| fail(format!("defaults: {e}")));
-    let rule = TrackRule {
-        frames: layer.track.frames,
-        max_speed_mps: layer.track.max_speed_mps,
-        gate_m: layer.track.gate_m,
-        min_score: layer.min_score,
-    };
+    let rule = layer.track.rule(layer.min_score);
     let min_speed = match arg("--min-speed") {
         Some(text) => match text.parse::<f64>() {
             Ok(v) if v.is_finite() && v >= 0.0 => v,

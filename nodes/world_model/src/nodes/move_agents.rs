@@ -93,6 +93,18 @@ pub struct TrackParams {
     pub min_speed_mps: f64,
 }
 
+impl TrackParams {
+    /// The tracker's rule, with the layer's score bar.
+    pub fn rule(&self, min_score: f64) -> TrackRule {
+        TrackRule {
+            frames: self.frames,
+            max_speed_mps: self.max_speed_mps,
+            gate_m: self.gate_m,
+            min_score,
+        }
+    }
+}
+
 impl Default for TrackParams {
     fn default() -> Self {
         Self {
@@ -294,13 +306,7 @@ fn agents_to_move(
             .cloned()
             .collect();
     }
-    let rule = TrackRule {
-        frames: params.track.frames,
-        max_speed_mps: params.track.max_speed_mps,
-        gate_m: params.track.gate_m,
-        min_score: params.min_score,
-    };
-    track_agents(detections, earlier, &rule)
+    track_agents(detections, earlier, &params.track.rule(params.min_score))
         .iter()
         .zip(&detections.agents)
         .filter(|(_, a)| accepted(a))
