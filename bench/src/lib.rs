@@ -11,6 +11,7 @@
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 pub mod agent_tracks;
+pub mod cli;
 pub mod forecast_budget;
 pub mod readme;
 

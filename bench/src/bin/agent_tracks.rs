@@ -8,6 +8,7 @@
 //!       --json bench/results/agent-tracks-val-vehicles.json
 //!   cargo run --release -p bevworld-bench --bin agent_tracks -- --table LABEL=FILE.json ...
 
+use bevworld_bench::cli::{arg, fail};
 use std::path::Path;
 
 use bevworld_bench::agent_tracks::{MATCH_DISTANCE_M, MOVING_FROM_MPS, TrackSpeeds, track_speeds};
@@ -16,18 +17,6 @@ use bevworld_types::DetectionResults;
 use bevworld_world_model::nodes::move_agents::MoveAgentsParams;
 
 const USAGE: &str = "usage: agent_tracks --data DIR --results results_nusc.json [--min-speed M/S] [--json OUT] | agent_tracks --table LABEL=FILE.json ...";
-
-fn arg(name: &str) -> Option<String> {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1).cloned())
-}
-
-fn fail(message: String) -> ! {
-    eprintln!("{message}");
-    std::process::exit(1);
-}
 
 fn speed(value: Option<f64>) -> String {
     value.map_or("—".into(), |v| format!("{v:.2}"))

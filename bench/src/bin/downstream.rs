@@ -16,6 +16,7 @@
 //!
 //! `--curves FILE.png` draws every arm's validation NDS against its steps.
 
+use bevworld_bench::cli::arg;
 use std::path::{Path, PathBuf};
 
 use bevworld_plot::{Panel, Series, panels_png};
@@ -33,13 +34,6 @@ const PAPER: [(&str, &str, f64, f64, f64, f64); 4] = [
 
 /// The run folders of the pretraining table.
 const PRETRAIN_PREFIX: &str = "pretrain-";
-
-fn arg(name: &str) -> Option<String> {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1).cloned())
-}
 
 fn read(path: &Path) -> Result<Value, String> {
     let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;

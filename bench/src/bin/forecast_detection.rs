@@ -15,6 +15,7 @@
 //!     --features out/detector/features-test/latent --data out/synth-det-test \
 //!     --json bench/results/forecast-detection.json
 
+use bevworld_bench::cli::{arg, fail};
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -28,18 +29,6 @@ use serde_json::{Value, json};
 
 /// Horizons scored, as indices into the six future keyframes (0.5 s apart).
 const HORIZONS: [(usize, f64); 2] = [(1, 1.0), (5, 3.0)];
-
-fn arg(name: &str) -> Option<String> {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1).cloned())
-}
-
-fn fail(message: String) -> ! {
-    eprintln!("{message}");
-    std::process::exit(1);
-}
 
 /// The keyframe indices of each scene of `set`, in time order.
 fn scenes(set: &DetectionSet) -> Vec<Vec<usize>> {
