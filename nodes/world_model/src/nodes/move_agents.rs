@@ -184,30 +184,34 @@ fn check(params: &MoveAgentsParams) -> Result<(), ParamError> {
                 .with_accepted(DETECTION_NAMES.join(", ")),
         );
     }
-    if !(2..=16).contains(&params.track.frames) {
-        return Err(ParamError::field(
-            "track.frames",
-            format!("{} must lie in 2..=16", params.track.frames),
-        ));
-    }
-    if !(params.track.max_speed_mps.is_finite() && params.track.max_speed_mps > 0.0) {
-        return Err(ParamError::field(
-            "track.max_speed_mps",
-            format!("{} must be a speed > 0 m/s", params.track.max_speed_mps),
-        ));
-    }
-    if !(params.track.gate_m.is_finite() && params.track.gate_m > 0.0) {
-        return Err(ParamError::field(
-            "track.gate_m",
-            format!("{} must be a distance > 0 m", params.track.gate_m),
-        ));
-    }
-    if !(params.track.min_speed_mps.is_finite() && params.track.min_speed_mps >= 0.0) {
-        return Err(ParamError::field(
-            "track.min_speed_mps",
-            format!("{} must be a speed ≥ 0 m/s", params.track.min_speed_mps),
-        ));
-    }
+    let require = |holds: bool, field: &str, message: String| {
+        if holds {
+            Ok(())
+        } else {
+            Err(ParamError::field(field, message))
+        }
+    };
+    let track = &params.track;
+    require(
+        (2..=16).contains(&track.frames),
+        "track.frames",
+        format!("{} must lie in 2..=16", track.frames),
+    )?;
+    require(
+        track.max_speed_mps.is_finite() && track.max_speed_mps > 0.0,
+        "track.max_speed_mps",
+        format!("{} must be a speed > 0 m/s", track.max_speed_mps),
+    )?;
+    require(
+        track.gate_m.is_finite() && track.gate_m > 0.0,
+        "track.gate_m",
+        format!("{} must be a distance > 0 m", track.gate_m),
+    )?;
+    require(
+        track.min_speed_mps.is_finite() && track.min_speed_mps >= 0.0,
+        "track.min_speed_mps",
+        format!("{} must be a speed ≥ 0 m/s", track.min_speed_mps),
+    )?;
     if params.max_held == 0 || params.max_held > 100_000 {
         return Err(ParamError::field(
             "max_held",
