@@ -12,6 +12,7 @@
 //! time, in the current ego frame.
 
 use glam::DVec3;
+use serde::{Deserialize, Serialize};
 
 use crate::detected_agents::FrameDetections;
 
@@ -28,12 +29,93 @@ pub struct TrackRule {
     pub min_score: f64,
 }
 
+/// How a graph node links agents across frames (`TrackRule`, with the node's score bar), and
+/// the speed under which a track stands.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackParams {
+    /// Frames in a track, the current one included.
+    #[serde(default = "default_track_frames")]
+    pub frames: usize,
+    /// Fastest speed a first link may imply, m/s.
+    #[serde(default = "default_max_speed")]
+    pub max_speed_mps: f64,
+    /// How far from where the track's velocity puts it an earlier detection may lie, m.
+    #[serde(default = "default_gate")]
+    pub gate_m: f64,
+    /// A track slower than this stands, m/s: a detector's positions jitter by decimetres, which
+    /// a track of a parked car turns into a speed that would carry it metres by 3 s.
+    #[serde(default = "default_min_speed")]
+    pub min_speed_mps: f64,
+}
+
+impl TrackParams {
+    /// The first field out of range, by name, with why.
+    pub fn problem(&self) -> Option<(&'static str, String)> {
+        if !(2..=16).contains(&self.frames) {
+            return Some(("frames", format!("{} must lie in 2..=16", self.frames)));
+        }
+        if !(self.max_speed_mps.is_finite() && self.max_speed_mps > 0.0) {
+            let message = format!("{} must be a speed > 0 m/s", self.max_speed_mps);
+            return Some(("max_speed_mps", message));
+        }
+        if !(self.gate_m.is_finite() && self.gate_m > 0.0) {
+            return Some((
+                "gate_m",
+                format!("{} must be a distance > 0 m", self.gate_m),
+            ));
+        }
+        if !(self.min_speed_mps.is_finite() && self.min_speed_mps >= 0.0) {
+            let message = format!("{} must be a speed ≥ 0 m/s", self.min_speed_mps);
+            return Some(("min_speed_mps", message));
+        }
+        None
+    }
+
+    /// The tracker's rule, with the node's score bar.
+    pub fn rule(&self, min_score: f64) -> TrackRule {
+        TrackRule {
+            frames: self.frames,
+            max_speed_mps: self.max_speed_mps,
+            gate_m: self.gate_m,
+            min_score,
+        }
+    }
+}
+
+impl Default for TrackParams {
+    fn default() -> Self {
+        Self {
+            frames: default_track_frames(),
+            max_speed_mps: default_max_speed(),
+            gate_m: default_gate(),
+            min_speed_mps: default_min_speed(),
+        }
+    }
+}
+
+fn default_track_frames() -> usize {
+    3
+}
+fn default_max_speed() -> f64 {
+    20.0
+}
+fn default_gate() -> f64 {
+    2.0
+}
+fn default_min_speed() -> f64 {
+    2.0
+}
+
 /// One current agent's track: its positions (x, y) in the current ego frame, newest first,
-/// and their times, seconds before the current frame (0 first).
+/// their times, seconds before the current frame (0 first), and the agent it is in each of
+/// those frames (its index in the frame's `agents`: the current frame's first, then each
+/// earlier frame's, as `track_agents` was given them).
 #[derive(Clone, Debug, PartialEq)]
 pub struct AgentTrack {
     pub positions: Vec<[f64; 2]>,
     pub seconds_before: Vec<f64>,
+    pub agents: Vec<usize>,
 }
 
 impl AgentTrack {
@@ -74,9 +156,11 @@ pub fn track_agents(
     let mut tracks: Vec<AgentTrack> = current
         .agents
         .iter()
-        .map(|a| AgentTrack {
+        .enumerate()
+        .map(|(i, a)| AgentTrack {
             positions: vec![[a.centre[0], a.centre[1]]],
             seconds_before: vec![0.0],
+            agents: vec![i],
         })
         .collect();
     let tracked: Vec<bool> = current
@@ -141,6 +225,7 @@ pub fn track_agents(
             linked_candidate[j] = true;
             tracks[i].positions.push(p);
             tracks[i].seconds_before.push(seconds_before);
+            tracks[i].agents.push(j);
         }
         for (a, linked) in alive.iter_mut().zip(&linked_track) {
             *a = *a && *linked;
@@ -242,6 +327,8 @@ mod tests {
             tracks[0].positions,
             vec![[10.0, 0.0], [5.0, 0.0], [0.0, 0.0]]
         );
+        // The first of frame 0's cars, not the nearer standing one (index 1).
+        assert_eq!(tracks[0].agents, vec![0, 0, 0]);
         let v = tracks[0].velocity().expect("tracked");
         assert!((v[0] - 10.0).abs() < 1e-9);
     }
@@ -286,12 +373,14 @@ mod tests {
         let track = AgentTrack {
             positions: vec![[10.0, 1.0], [4.0, 1.0], [0.0, 1.0]],
             seconds_before: vec![0.0, 0.5, 1.0],
+            agents: vec![0, 0, 0],
         };
         let v = track.velocity().expect("three points");
         assert!((v[0] - 10.0).abs() < 1e-12 && v[1].abs() < 1e-12);
         let alone = AgentTrack {
             positions: vec![[1.0, 1.0]],
             seconds_before: vec![0.0],
+            agents: vec![0],
         };
         assert_eq!(alone.velocity(), None);
     }

@@ -11,6 +11,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used))]
 
 pub mod action;
+pub mod agent_returns;
 pub mod agent_track;
 pub mod agent_warp;
 pub mod bev;
@@ -35,7 +36,11 @@ pub mod score_table;
 pub mod splitmix;
 
 pub use action::EgoAction;
-pub use agent_track::{AgentTrack, TrackRule, track_agents};
+pub use agent_returns::{
+    DetectionsWithReturns, ReturnsRule, frame_returns, register_returns, returns_of,
+    track_velocity_on_returns, velocities_on_returns,
+};
+pub use agent_track::{AgentTrack, TrackParams, TrackRule, track_agents};
 pub use agent_warp::{AgentMotion, Footprint, move_agents};
 pub use bev::{BevFeatures, BevGrid, FrameMeta};
 pub use bev_warp::{LatentGrid, PlanarMotion, WarpTaps, taps_at, warp_latent, warp_taps};

@@ -25,7 +25,7 @@ use bevworld_types::action::wrap_angle;
 use bevworld_types::detection::DETECTION_NAMES;
 use bevworld_types::{
     AgentMotion, BevFeatures, DetectedAgent, Footprint, Forecast, ForecastMethod, FrameDetections,
-    LatentGrid, PlanarMotion, TrackRule, move_agents, track_agents,
+    LatentGrid, PlanarMotion, TrackParams, move_agents, track_agents,
 };
 use serde::{Deserialize, Serialize};
 
@@ -72,61 +72,6 @@ pub enum Follow {
     Velocity,
     /// The velocity of its track through the earlier frames' detections, constant.
     Track,
-}
-
-/// `follow: track`'s linking (`bevworld_types::TrackRule`; the score bar is `min_score`).
-#[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct TrackParams {
-    /// Frames in a track, the current one included.
-    #[serde(default = "default_track_frames")]
-    pub frames: usize,
-    /// Fastest speed a first link may imply, m/s.
-    #[serde(default = "default_max_speed")]
-    pub max_speed_mps: f64,
-    /// How far from where the track's velocity puts it an earlier detection may lie, m.
-    #[serde(default = "default_gate")]
-    pub gate_m: f64,
-    /// A track slower than this stands, m/s: a detector's positions jitter by decimetres, which
-    /// a track of a parked car turns into a speed that would carry it metres by 3 s.
-    #[serde(default = "default_min_speed")]
-    pub min_speed_mps: f64,
-}
-
-impl TrackParams {
-    /// The tracker's rule, with the layer's score bar.
-    pub fn rule(&self, min_score: f64) -> TrackRule {
-        TrackRule {
-            frames: self.frames,
-            max_speed_mps: self.max_speed_mps,
-            gate_m: self.gate_m,
-            min_score,
-        }
-    }
-}
-
-impl Default for TrackParams {
-    fn default() -> Self {
-        Self {
-            frames: default_track_frames(),
-            max_speed_mps: default_max_speed(),
-            gate_m: default_gate(),
-            min_speed_mps: default_min_speed(),
-        }
-    }
-}
-
-fn default_track_frames() -> usize {
-    3
-}
-fn default_max_speed() -> f64 {
-    20.0
-}
-fn default_gate() -> f64 {
-    2.0
-}
-fn default_min_speed() -> f64 {
-    2.0
 }
 
 fn default_min_score() -> f64 {
@@ -184,34 +129,9 @@ fn check(params: &MoveAgentsParams) -> Result<(), ParamError> {
                 .with_accepted(DETECTION_NAMES.join(", ")),
         );
     }
-    let require = |holds: bool, field: &str, message: String| {
-        if holds {
-            Ok(())
-        } else {
-            Err(ParamError::field(field, message))
-        }
-    };
-    let track = &params.track;
-    require(
-        (2..=16).contains(&track.frames),
-        "track.frames",
-        format!("{} must lie in 2..=16", track.frames),
-    )?;
-    require(
-        track.max_speed_mps.is_finite() && track.max_speed_mps > 0.0,
-        "track.max_speed_mps",
-        format!("{} must be a speed > 0 m/s", track.max_speed_mps),
-    )?;
-    require(
-        track.gate_m.is_finite() && track.gate_m > 0.0,
-        "track.gate_m",
-        format!("{} must be a distance > 0 m", track.gate_m),
-    )?;
-    require(
-        track.min_speed_mps.is_finite() && track.min_speed_mps >= 0.0,
-        "track.min_speed_mps",
-        format!("{} must be a speed ≥ 0 m/s", track.min_speed_mps),
-    )?;
+    if let Some((field, message)) = params.track.problem() {
+        return Err(ParamError::field(format!("track.{field}"), message));
+    }
     if params.max_held == 0 || params.max_held > 100_000 {
         return Err(ParamError::field(
             "max_held",
