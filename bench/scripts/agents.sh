@@ -20,7 +20,10 @@
 #     frames' detections (`agents.follow=track`), for the three detectors, and with the
 #     speed under which a track stands at 0 and 4 m/s instead of 2; then each annotated car's
 #     speed as the tracks and the velocity head tell it (`agent_tracks`, at 2 and 4 m/s).
-#  6. With TEST=1, instead of 1-5: the bound and the chosen agent layers (the weighted
+#  6. Each car's velocity read from its LiDAR returns instead of the detections' positions
+#     (`agent_tracks --on-returns MARGIN`: each track's returns registered frame onto frame),
+#     margins 0.5 and 1 m, tracks of 2, 3 and 5 frames.
+#  7. With TEST=1, instead of 1-6: the bound and the chosen agent layers (the weighted
 #     detector following its velocity, and following the tracks) on the test scenes
 #     (9500-9503), once.
 #   bench/scripts/agents.sh [BEVWORLD_BINARY]
@@ -68,6 +71,9 @@ if [ "${TEST:-0}" = 1 ]; then
             --results out/eval-agents-detect-test-vehicles/results_nusc.json \
             --min-speed $v --json "bench/results/agent-tracks-test-vehicles-s$v.json"
     done
+    cargo run --release -p bevworld-bench --bin agent_tracks -- --data out/synth-wm-test \
+        --results out/eval-agents-detect-test-vehicles/results_nusc.json --on-returns 1.0 \
+        --min-speed 2 --json bench/results/agent-tracks-test-vehicles-returns-s2.json
     for f in bench/results/agents-bound-test-*.json bench/results/agents-test-*.json; do
         $TABLES "$f"
     done
@@ -108,6 +114,18 @@ for v in 2 4; do
     $SPEEDS --data out/synth-wm-val --results out/eval-agents-detect-val-vehicles/results_nusc.json \
         --min-speed $v --json "bench/results/agent-tracks-val-vehicles-s$v.json"
 done
+returns() { # LABEL [agent_tracks flags]
+    $SPEEDS --data out/synth-wm-val --results out/eval-agents-detect-val-vehicles/results_nusc.json \
+        --min-speed 2 "${@:2}" --json "bench/results/agent-tracks-val-vehicles-returns$1-s2.json"
+}
+for f in 2 5 9; do # the detections' positions, longer and shorter tracks
+    $SPEEDS --data out/synth-wm-val --results out/eval-agents-detect-val-vehicles/results_nusc.json \
+        --frames $f --min-speed 2 --json "bench/results/agent-tracks-val-vehicles-f$f-s2.json"
+done
+returns "" --on-returns 1.0
+returns -m0.5 --on-returns 0.5
+returns -f2 --on-returns 1.0 --frames 2
+returns -f5 --on-returns 1.0 --frames 5
 for f in bench/results/agents-bound-val-*.json bench/results/agents-val-*.json; do
     $TABLES "$f"
 done

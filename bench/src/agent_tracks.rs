@@ -13,8 +13,9 @@
 use std::collections::BTreeMap;
 
 use bevworld_types::{
-    DetectedAgent, Detection, FrameDetections, FrameMeta, MOVING_SPEED_MPS, Pose, SensorFrame,
-    TrackRule, track_agents,
+    AgentTrack, DetectedAgent, Detection, DetectionsWithReturns, FrameDetections, FrameMeta,
+    MOVING_SPEED_MPS, Pose, ReturnsRule, SensorFrame, TrackRule, frame_returns, track_agents,
+    velocities_on_returns,
 };
 use serde::{Deserialize, Serialize};
 
@@ -50,10 +51,22 @@ pub struct CarClassSpeeds {
 #[serde(deny_unknown_fields)]
 pub struct TrackSpeeds {
     pub keyframes: usize,
+    /// Frames a track reaches back, the current one included (files written before it was
+    /// recorded tracked through 3).
+    #[serde(default = "three_frames")]
+    pub frames: usize,
     pub min_score: f64,
     pub min_speed_mps: f64,
+    /// With velocities read from the LiDAR returns (`agent_returns`): the margin around each
+    /// box that took them, m; `None` for the detector's positions.
+    #[serde(default)]
+    pub returns_margin_m: Option<f64>,
     pub moving: CarClassSpeeds,
     pub parked: CarClassSpeeds,
+}
+
+fn three_frames() -> usize {
+    3
 }
 
 fn median(mut values: Vec<f64>) -> Option<f64> {
@@ -98,12 +111,35 @@ fn in_global_frame(frame: &SensorFrame, detections: &[Detection]) -> FrameDetect
     }
 }
 
+/// A keyframe's LiDAR returns off the ego's body, in the global frame (where the tracker reads
+/// `in_global_frame`'s detections).
+fn global_points(frame: &SensorFrame) -> Vec<[f32; 3]> {
+    let global_from_lidar = frame.lidar.global_from_ego * frame.lidar.ego_from_lidar;
+    frame
+        .lidar
+        .scene_indices()
+        .into_iter()
+        .map(|i| {
+            let p = &frame.lidar.points[i];
+            let g = global_from_lidar.transform_point3(glam::DVec3::new(
+                f64::from(p.x),
+                f64::from(p.y),
+                f64::from(p.z),
+            ));
+            [g.x as f32, g.y as f32, g.z as f32]
+        })
+        .collect()
+}
+
 /// The per-car speeds of `results` (by sample token, the submission's boxes) on `keyframes`,
-/// tracked by `rule`; the layer carries what is at least `min_speed_mps` fast.
+/// tracked by `rule`, each track's velocity read from the detections' positions or, with
+/// `returns`, from the registration of its LiDAR returns; the layer carries what is at least
+/// `min_speed_mps` fast.
 pub fn track_speeds(
     keyframes: &[SensorFrame],
     results: &BTreeMap<String, Vec<Detection>>,
     rule: &TrackRule,
+    returns: Option<&ReturnsRule>,
     min_speed_mps: f64,
 ) -> TrackSpeeds {
     let mut order: Vec<&SensorFrame> = keyframes.iter().collect();
@@ -118,17 +154,44 @@ pub fn track_speeds(
             in_global_frame(f, boxes)
         })
         .collect();
+    // With `returns`, each agent's returns, and the velocities come from their registration.
+    let frame_returns: Vec<Vec<Vec<[f64; 2]>>> = match returns {
+        None => Vec::new(),
+        Some(returns) => order
+            .iter()
+            .zip(&frames)
+            .map(|(f, d)| frame_returns(d, &global_points(f), returns))
+            .collect(),
+    };
     let mut errors: [(Vec<f64>, Vec<f64>); 2] = Default::default();
     let mut summary = TrackSpeeds {
         keyframes: frames.len(),
+        frames: rule.frames,
         min_score: rule.min_score,
         min_speed_mps,
+        returns_margin_m: returns.map(|r| r.margin_m),
         ..Default::default()
     };
     for (k, (frame, detections)) in order.iter().zip(&frames).enumerate() {
         // The frames before this one, newest first; `track_agents` stops at another scene.
-        let earlier: Vec<&FrameDetections> = frames[..k].iter().rev().collect();
-        let tracks = track_agents(detections, &earlier, rule);
+        let velocities: Vec<Option<[f64; 2]>> = match returns {
+            None => {
+                let earlier: Vec<&FrameDetections> = frames[..k].iter().rev().collect();
+                track_agents(detections, &earlier, rule)
+                    .iter()
+                    .map(AgentTrack::velocity)
+                    .collect()
+            }
+            Some(returns) => {
+                let with_returns = |i: usize| DetectionsWithReturns {
+                    detections: &frames[i],
+                    returns: &frame_returns[i],
+                };
+                let earlier: Vec<DetectionsWithReturns<'_>> =
+                    (0..k).rev().map(with_returns).collect();
+                velocities_on_returns(with_returns(k), &earlier, rule, returns.min_returns)
+            }
+        };
         let speed = |v: [f64; 2]| v[0].hypot(v[1]);
         // Nearest pairs first, as the tracker links.
         let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
@@ -180,7 +243,7 @@ pub fn track_speeds(
                 .1
                 .push(speed([head[0] - truth[0], head[1] - truth[1]]));
             class.carried_by_head += usize::from(speed(head) >= min_speed_mps);
-            if let Some(v) = tracks[j].velocity() {
+            if let Some(v) = velocities[j] {
                 class.tracked += 1;
                 let error = speed([v[0] - truth[0], v[1] - truth[1]]);
                 class_errors.0.push(error);
@@ -284,7 +347,7 @@ mod tests {
             gate_m: 2.0,
             min_score: 0.3,
         };
-        let speeds = track_speeds(&keyframes, &results, &rule, 2.0);
+        let speeds = track_speeds(&keyframes, &results, &rule, None, 2.0);
         assert_eq!(speeds.keyframes, 3);
         let moving = &speeds.moving;
         assert_eq!((moving.cars, moving.detected, moving.tracked), (3, 3, 2));
@@ -304,8 +367,18 @@ mod tests {
         assert_eq!(parked.head_error_median_mps, Some(0.0));
         assert_eq!((parked.carried_by_track, parked.carried_by_head), (0, 0));
         // At a bar of 0.5 m/s the drifting parked car is carried twice.
-        let low = track_speeds(&keyframes, &results, &rule, 0.5);
+        let low = track_speeds(&keyframes, &results, &rule, None, 0.5);
         assert_eq!(low.parked.carried_by_track, 2);
+        // Tracks of two frames: at 1 s the driving car's slope is (10 − 4.8)/0.5 = 10.4 m/s,
+        // error 0.4, as at 0.5 s: the median becomes 0.4.
+        let short = TrackRule { frames: 2, ..rule };
+        let two = track_speeds(&keyframes, &results, &short, None, 2.0);
+        assert_eq!(two.frames, 2);
+        assert!(
+            close(two.moving.track_error_median_mps, 0.4),
+            "{:?}",
+            two.moving
+        );
     }
 
     #[test]
@@ -317,7 +390,7 @@ mod tests {
             gate_m: 2.0,
             min_score: 0.3,
         };
-        let speeds = track_speeds(&keyframes, &BTreeMap::new(), &rule, 2.0);
+        let speeds = track_speeds(&keyframes, &BTreeMap::new(), &rule, None, 2.0);
         assert_eq!((speeds.moving.cars, speeds.moving.detected), (1, 0));
         assert_eq!(speeds.moving.track_error_median_mps, None);
         assert_eq!(speeds.moving.head_error_median_mps, None);
@@ -331,10 +404,15 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(error.contains("tracked"), "{error}");
-        let unknown = text.replace("\"keyframes\"", "\"frames\"");
+        let unknown = text.replace("\"keyframes\"", "\"keyframe_count\"");
         let error = serde_json::from_str::<TrackSpeeds>(&unknown)
             .unwrap_err()
             .to_string();
-        assert!(error.contains("frames"), "{error}");
+        assert!(error.contains("keyframe_count"), "{error}");
+        // A summary from before the track length was recorded tracked through 3 frames.
+        let before = text.replace("\"frames\":3,", "");
+        assert_ne!(before, text);
+        let back: TrackSpeeds = serde_json::from_str(&before).expect("older summary");
+        assert_eq!(back.frames, 3);
     }
 }

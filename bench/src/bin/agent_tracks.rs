@@ -1,7 +1,10 @@
 //! Each annotated car's speed as the agent layer's tracks tell it, and as the detector's
 //! velocity head does (`bevworld_bench::agent_tracks`), from a `detect.yaml` run's
 //! `results_nusc.json` on a dataset's keyframes. The tracks are `move_agents`' defaults;
-//! `--min-speed` sets the speed from which the layer carries a car instead of its default.
+//! `--frames` sets how many frames a track reaches back (the current one included) and
+//! `--min-speed` the speed from which the layer carries a car, instead of their defaults;
+//! `--on-returns MARGIN_M` re-centres every detection on the keyframe's LiDAR returns inside
+//! its box grown by that margin (`bevworld_types::agent_returns`) before tracking.
 //!
 //!   cargo run --release -p bevworld-bench --bin agent_tracks -- \
 //!       --data out/synth-wm-val --results out/eval-agents-detect-val-vehicles/results_nusc.json \
@@ -13,10 +16,10 @@ use std::path::Path;
 
 use bevworld_bench::agent_tracks::{MATCH_DISTANCE_M, MOVING_FROM_MPS, TrackSpeeds, track_speeds};
 use bevworld_sensors::{Dataset, DatasetOptions};
-use bevworld_types::DetectionResults;
+use bevworld_types::{DetectionResults, ReturnsRule};
 use bevworld_world_model::nodes::move_agents::MoveAgentsParams;
 
-const USAGE: &str = "usage: agent_tracks --data DIR --results results_nusc.json [--min-speed M/S] [--json OUT] | agent_tracks --table LABEL=FILE.json ...";
+const USAGE: &str = "usage: agent_tracks --data DIR --results results_nusc.json [--frames N] [--on-returns MARGIN_M] [--min-speed M/S] [--json OUT] | agent_tracks --table LABEL=FILE.json ...";
 
 fn speed(value: Option<f64>) -> String {
     value.map_or("—".into(), |v| format!("{v:.2}"))
@@ -94,7 +97,15 @@ fn main() {
     }
     let layer: MoveAgentsParams =
         serde_json::from_str("{}").unwrap_or_else(|e| fail(format!("defaults: {e}")));
-    let rule = layer.track.rule(layer.min_score);
+    let mut rule = layer.track.rule(layer.min_score);
+    if let Some(text) = arg("--frames") {
+        rule.frames = match text.parse::<usize>() {
+            Ok(n) if (2..=16).contains(&n) => n,
+            _ => fail(format!(
+                "--frames {text}: not a track length in 2..=16 frames"
+            )),
+        };
+    }
     let min_speed = match arg("--min-speed") {
         Some(text) => match text.parse::<f64>() {
             Ok(v) if v.is_finite() && v >= 0.0 => v,
@@ -102,7 +113,21 @@ fn main() {
         },
         None => layer.track.min_speed_mps,
     };
-    let speeds = track_speeds(&keyframes, &results.results, &rule, min_speed);
+    let returns = arg("--on-returns").map(|text| match text.parse::<f64>() {
+        Ok(margin_m) if margin_m.is_finite() && margin_m >= 0.0 => ReturnsRule {
+            margin_m,
+            above_bottom_m: 0.3,
+            min_returns: 3,
+        },
+        _ => fail(format!("--on-returns {text}: not a margin ≥ 0 m")),
+    });
+    let speeds = track_speeds(
+        &keyframes,
+        &results.results,
+        &rule,
+        returns.as_ref(),
+        min_speed,
+    );
     eprintln!(
         "cars matched within {MATCH_DISTANCE_M} m; moving from {MOVING_FROM_MPS} m/s annotated"
     );
