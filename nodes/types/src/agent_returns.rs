@@ -357,26 +357,11 @@ mod tests {
 
     #[test]
     fn velocities_come_from_the_returns_in_the_current_ego_frame_not_from_the_boxes() {
-        use crate::bev::FrameMeta;
-        use crate::pose::Pose;
+        use crate::agent_track::tests::{RULE as TRACK_RULE, frame};
         // The ego drives +x at 8 m/s (x = 0, then 4). A car drives +x at 10 m/s, its centre
         // from global (20, 1) to (25, 1); a car stands at global (32, 5). The detector puts the
         // driving car 0.3 m ahead, then 0.4 m behind (global 20.3, then 24.6: 8.6 m/s) and the
         // parked one 0.2 m off; their returns, each car's corner, are where the cars are.
-        let frame = |t: f64, ego_x: f64, agents: Vec<DetectedAgent>| FrameDetections {
-            meta: FrameMeta {
-                sample_token: format!("s{t}"),
-                frame_token: format!("f{t}"),
-                scene_name: "a".into(),
-                time_of_validity_us: (t * 1e6).round() as i64,
-                global_from_ego: Pose::from_translation(DVec3::new(ego_x, 0.0, 0.0)),
-                keyframe: true,
-            },
-            agents,
-            interval_s: 0.5,
-            model: "detector-tiny".into(),
-            weights_hash: "d".into(),
-        };
         let in_ego = |ego_x: f64, corners: &[[f64; 2]]| -> Vec<[f32; 3]> {
             corners
                 .iter()
@@ -396,12 +381,7 @@ mod tests {
                 .chain(&returns_before)
                 .all(|r| r.len() == 25)
         );
-        let rule = TrackRule {
-            frames: 3,
-            max_speed_mps: 20.0,
-            gate_m: 2.0,
-            min_score: 0.3,
-        };
+        let rule = TRACK_RULE;
         let velocities = velocities_on_returns(
             DetectionsWithReturns {
                 detections: &now,

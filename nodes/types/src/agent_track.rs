@@ -235,7 +235,7 @@ pub fn track_agents(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::bev::FrameMeta;
     use crate::detected_agents::DetectedAgent;
@@ -253,7 +253,8 @@ mod tests {
         }
     }
 
-    fn frame(time_s: f64, ego_x: f64, agents: Vec<DetectedAgent>) -> FrameDetections {
+    /// A keyframe of scene "a" at `time_s`, the ego at (`ego_x`, 0), holding `agents`.
+    pub(crate) fn frame(time_s: f64, ego_x: f64, agents: Vec<DetectedAgent>) -> FrameDetections {
         FrameDetections {
             meta: FrameMeta {
                 sample_token: format!("s{time_s}"),
@@ -270,7 +271,7 @@ mod tests {
         }
     }
 
-    const RULE: TrackRule = TrackRule {
+    pub(crate) const RULE: TrackRule = TrackRule {
         frames: 3,
         max_speed_mps: 20.0,
         gate_m: 2.0,
